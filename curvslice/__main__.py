@@ -1,0 +1,5 @@
+import sys
+
+from curvslice.cli import main
+
+sys.exit(main())

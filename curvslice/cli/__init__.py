@@ -1,0 +1,49 @@
+"""Command-line entry point: argument parsing and composition of the stages, nothing else.
+
+Each sub-command lives in its own module of this package exposing ``add_parser(subparsers)``
+and ``run(args) -> int``. A :class:`~curvslice.errors.CurvsliceError` (bad input, bad settings)
+is printed as one line on stderr with exit code 2; Ctrl-C exits with 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from curvslice import __version__
+from curvslice.errors import CurvsliceError
+
+#: Sub-command modules of ``curvslice.cli``, in the order ``--help`` lists them.
+COMMANDS = ("slice", "verify")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="curvslice",
+        description="Support-free multi-axis 3D printing with robot arms (curved layers, "
+        "Fermat-spiral tool-paths, pose-continuous robot programs).",
+    )
+    parser.add_argument("--version", action="version", version=f"curvslice {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name in COMMANDS:
+        module = importlib.import_module(f"curvslice.cli.{name.replace('-', '_')}")
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.run(args) or 0)
+    except CurvsliceError as exc:
+        print(f"curvslice {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"curvslice {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
