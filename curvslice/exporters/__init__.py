@@ -1,0 +1,78 @@
+"""Writers (and readers) of robot programs and tool-path files.
+
+One module per target language: ``gcode6`` (the thesis appendix's extended G-code with
+``nX nY nZ``), ``urscript`` (Universal Robots), ``rapid`` (ABB, seeds 000/004), ``vplus``
+(Adept, seed 003) and ``arduino`` (the AccelStepper extruder sketch of seed 003). Every writer
+has a reader so a program can be checked by reading it back. This package module holds the
+small helpers the writers share: argument checks, number formatting and file splitting.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from curvslice.errors import CurvsliceError
+
+
+def fixed(value: float, digits: int) -> str:
+    """``value`` rounded to ``digits`` decimals without trailing zeros, keeping one (``10.0``)."""
+    text = f"{float(value):.{digits}f}".rstrip("0")
+    text = text + "0" if text.endswith(".") else text
+    return "0.0" if text in ("-0.0", "-0") else text
+
+
+def compact(value: float, digits: int) -> str:
+    """``value`` rounded to ``digits`` decimals without trailing zeros or dot (``180``, ``0.5``)."""
+    text = fixed(value, digits)
+    return text[:-2] if text.endswith(".0") else text
+
+
+def chunks(n: int, per_chunk: int) -> list[range]:
+    """Consecutive index ranges covering ``range(n)`` with at most ``per_chunk`` items each."""
+    if per_chunk < 1:
+        raise CurvsliceError(f"file split size must be at least 1 (got {per_chunk})")
+    return [range(s, min(s + per_chunk, n)) for s in range(0, n, per_chunk)]
+
+
+def joint_program(
+    q: np.ndarray, t: np.ndarray, segment: np.ndarray | None, extruding: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Validated joint-space program arrays: q (N,6) rad, t (N,) s increasing, segment, extruding.
+
+    ``segment`` defaults to one motion (all 0), ``extruding`` to all False.
+    """
+    q = np.asarray(q, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    if q.ndim != 2 or q.shape[1] != 6 or len(q) == 0:
+        raise CurvsliceError(f"joint program needs q of shape (N, 6) with N >= 1, got {q.shape}")
+    if t.shape != (len(q),):
+        raise CurvsliceError(f"joint program needs one time per row: t has shape {t.shape}, q {q.shape}")
+    if not (np.isfinite(q).all() and np.isfinite(t).all()):
+        raise CurvsliceError("joint program contains NaN or infinite joint angles or times")
+    if np.any(np.diff(t) <= 0):
+        bad = int(np.argmax(np.diff(t) <= 0)) + 1
+        raise CurvsliceError(f"joint program times must increase strictly (row {bad}: t={t[bad]} after {t[bad - 1]})")
+    seg = np.zeros(len(q), np.int64) if segment is None else np.asarray(segment).astype(np.int64)
+    ext = np.zeros(len(q), bool) if extruding is None else np.asarray(extruding).astype(bool)
+    if seg.shape != (len(q),) or ext.shape != (len(q),):
+        raise CurvsliceError("segment and extruding must have one entry per joint-program row")
+    return q, t, seg, ext
+
+
+def relative_times(t: np.ndarray) -> np.ndarray:
+    """Per-row durations (s, 9 decimals) whose running sum restores ``t - t[0]`` to 1e-9 s.
+
+    Rounding the *absolute* offsets before differencing keeps rounding errors from
+    accumulating over long programs. The first entry is 0.
+    """
+    r = np.round(t - t[0], 9)
+    return np.diff(r, prepend=r[0])
+
+
+def clean_outdir(outdir: Path, pattern: str) -> None:
+    """Create ``outdir`` and delete stale files of an earlier split (``pattern`` glob)."""
+    outdir.mkdir(parents=True, exist_ok=True)
+    for old in outdir.glob(pattern):
+        old.unlink()
