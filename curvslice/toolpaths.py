@@ -1,0 +1,469 @@
+"""Continuous tool-paths on a curved working surface: connected Fermat spirals (thesis §3.5.1).
+
+Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9):
+
+1. the geodesic distance ``d`` from the layer boundary (:mod:`curvslice.geodesic`);
+2. iso-contours ("rings") of ``d`` at ``(k + 1/2)·w`` for path width ``w``, extracted on the mesh
+   as closed polylines with the higher side on their left; every band between consecutive levels
+   is split into connected *band components*, which gives the exact contour tree: a ring bounds
+   one component below and one above;
+3. connected Fermat spirals (Zhao et al., SIGGRAPH 2016, the thesis's ref. [2]): a chain of
+   nested rings is cut near a common cut line and rerouted into one in-and-out spiral (inwards
+   on rings 0, 2, 4, ..., outwards on 1, 3, 5, ..., both ends next to each other on the outer
+   ring); where the contour tree branches, each child spiral is spliced into the ring that
+   hosts it through a gap, so a connected region is one continuous piece unless a splice has no
+   room (then the child becomes its own piece, counted as a jump);
+4. uniform re-sampling at ``step`` (1 mm in the thesis, §3.5.2), keeping sharp corners;
+5. extrusion per segment from length × width × local layer thickness (volume conservation,
+   :func:`curvslice.flow.filament_length`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from curvslice.flow import filament_length
+from curvslice.geodesic import boundary_distance
+
+#: Rings shorter than this many path widths are printed as a single dot at their centre.
+_DOT_RING = 4.0
+#: Sharp corners (turn above this angle, radians) are kept as samples when re-sampling.
+_CORNER = np.radians(30.0)
+
+
+@dataclass
+class Ring:
+    """A closed iso-contour: points (k,3) with the higher distance on the left, its band comps."""
+
+    level: float
+    points: np.ndarray
+    below: int
+    above: int
+
+    @property
+    def length(self) -> float:
+        return float(self.cumlen[-1])
+
+    @property
+    def cumlen(self) -> np.ndarray:
+        closed = np.vstack([self.points, self.points[:1]])
+        return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]
+
+
+@dataclass
+class LayerPaths:
+    """Tool-path pieces of one layer (polylines, print order) and how they were made."""
+
+    pieces: list[np.ndarray]
+    rings: int = 0
+    regions: int = 0
+    splices: int = 0
+    failed_splices: int = 0
+    closed_components: int = 0
+    travel: float = 0.0
+    max_distance: float = 0.0
+    stats: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def jumps(self) -> int:
+        return max(len(self.pieces) - 1, 0)
+
+
+# ----------------------------------------------------------------------------- iso-contours
+
+
+def _edge_ids(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(F,3) undirected edge id of the edge from corner c to corner c+1."""
+    a = faces
+    b = np.roll(faces, -1, axis=1)
+    code = np.minimum(a, b).astype(np.int64) * n_vertices + np.maximum(a, b)
+    _, inverse = np.unique(code.ravel(), return_inverse=True)
+    return inverse.reshape(faces.shape)
+
+
+def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
+                  levels: np.ndarray) -> tuple[list[Ring], int]:
+    """Closed iso-contours of the per-vertex ``dist`` at ascending ``levels`` and band components.
+
+    Returns the rings and the number of band components. Band ``b`` holds the values in
+    ``[levels[b-1], levels[b])``; a value equal to a level counts as above it.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    d = np.where(np.isfinite(dist), dist, -np.inf)
+    levels = np.asarray(levels, np.float64)
+    nlev = len(levels)
+    band = np.searchsorted(levels, d, side="right")
+    fb = band[f]
+    bmin, bmax = fb.min(axis=1), fb.max(axis=1)
+    eid = _edge_ids(f, len(v))
+
+    # band components: nodes (face, band) for every band a face touches, joined across edges
+    width = bmax - bmin + 1
+    offset = np.r_[0, np.cumsum(width)]
+    n_nodes = int(offset[-1])
+    fe = eid.ravel()
+    order = np.argsort(fe, kind="stable")
+    fe_sorted = fe[order]
+    same = fe_sorted[1:] == fe_sorted[:-1]
+    f1, f2 = order[:-1][same] // 3, order[1:][same] // 3
+    corner = order[:-1][same] % 3
+    ea, eb = band[f[f1, corner]], band[f[f1, (corner + 1) % 3]]
+    lo, hi = np.minimum(ea, eb), np.maximum(ea, eb)
+    cnt = hi - lo + 1
+    rep = np.repeat(np.arange(len(lo)), cnt)
+    bb = lo[rep] + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+    n1 = offset[f1[rep]] + bb - bmin[f1[rep]]
+    n2 = offset[f2[rep]] + bb - bmin[f2[rep]]
+    graph = sp.coo_matrix((np.ones(len(n1)), (n1, n2)), shape=(n_nodes, n_nodes))
+    n_comp, comp = connected_components(graph, directed=False)
+
+    # one oriented segment per (face, crossed level)
+    crossings = bmax - bmin
+    pf = np.repeat(np.arange(len(f)), crossings)
+    if len(pf) == 0:
+        return [], n_comp
+    pk = bmin[pf] + (np.arange(len(pf)) - np.repeat(np.cumsum(crossings) - crossings, crossings))
+    above = d[f[pf]] >= levels[pk][:, None]
+    nxt = np.roll(above, -1, axis=1)
+    start_c = np.argmax(above & ~nxt, axis=1)
+    end_c = np.argmax(~above & nxt, axis=1)
+    rows = np.arange(len(pf))
+
+    def crossing(c: np.ndarray) -> np.ndarray:
+        p, q = f[pf, c], f[pf, (c + 1) % 3]
+        t = (levels[pk] - d[p]) / (d[q] - d[p])
+        return v[p] + t[:, None] * (v[q] - v[p])
+
+    start_key = eid[pf, start_c] * nlev + pk
+    end_key = eid[pf, end_c] * nlev + pk
+    p_start = crossing(start_c)
+    skey_order = np.argsort(start_key)
+    pos = np.searchsorted(start_key[skey_order], end_key)
+    pos = np.minimum(pos, len(pf) - 1)
+    found = start_key[skey_order[pos]] == end_key
+    nxt_seg = np.where(found, skey_order[pos], -1)
+    has_prev = np.zeros(len(pf), bool)
+    has_prev[nxt_seg[nxt_seg >= 0]] = True
+    below_node = comp[offset[pf] + pk - bmin[pf]]
+    above_node = comp[offset[pf] + pk + 1 - bmin[pf]]
+
+    rings: list[Ring] = []
+    visited = np.zeros(len(pf), bool)
+    for seed in np.r_[rows[~has_prev], rows]:  # open chains (non-manifold spots) first, then cycles
+        if visited[seed]:
+            continue
+        chain = []
+        s = seed
+        while s >= 0 and not visited[s]:
+            visited[s] = True
+            chain.append(s)
+            s = nxt_seg[s]
+        if len(chain) >= 3:
+            idx = np.asarray(chain)
+            rings.append(Ring(float(levels[pk[seed]]), p_start[idx], int(below_node[seed]), int(above_node[seed])))
+    return rings, n_comp
+
+
+# ----------------------------------------------------------------------------- ring geometry
+
+
+def _arc(ring: Ring, s_from: float, s_to: float, direction: int) -> np.ndarray:
+    """Points of ``ring`` from arclength ``s_from`` to ``s_to`` walking in ``direction`` (±1)."""
+    cum = ring.cumlen
+    total = cum[-1]
+    pts = np.vstack([ring.points, ring.points[:1]])
+    if total <= 0:
+        return ring.points[:1].copy()
+    s_from %= total
+    s_to %= total
+    span = (s_to - s_from) % total if direction > 0 else (s_from - s_to) % total
+    inner = cum[1:-1]
+    rel = ((inner - s_from) % total) if direction > 0 else ((s_from - inner) % total)
+    pick = np.nonzero((rel > 1e-9) & (rel < span - 1e-9))[0]
+    pick = pick[np.argsort(rel[pick])]
+    ends = [_point_at(pts, cum, s_from), _point_at(pts, cum, s_to)]
+    return np.vstack([ends[0], pts[1:-1][pick], ends[1]])
+
+
+def _point_at(closed_pts: np.ndarray, cum: np.ndarray, s: float) -> np.ndarray:
+    i = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(cum) - 2))
+    seg = cum[i + 1] - cum[i]
+    t = 0.0 if seg <= 0 else (s - cum[i]) / seg
+    return closed_pts[i] + t * (closed_pts[i + 1] - closed_pts[i])
+
+
+def _closest_s(ring: Ring, point: np.ndarray) -> tuple[float, float]:
+    """Arclength of the point of ``ring`` closest to ``point`` and that distance."""
+    a = ring.points
+    b = np.roll(a, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", point - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0, 1)
+    proj = a + t[:, None] * ab
+    dist = np.linalg.norm(proj - point, axis=1)
+    i = int(np.argmin(dist))
+    cum = ring.cumlen
+    return float(cum[i] + t[i] * (cum[i + 1] - cum[i])), float(dist[i])
+
+
+def _tangent(ring: Ring, s: float, span: float) -> np.ndarray:
+    cum = ring.cumlen
+    pts = np.vstack([ring.points, ring.points[:1]])
+    total = cum[-1]
+    return _point_at(pts, cum, (s + span) % total) - _point_at(pts, cum, (s - span) % total)
+
+
+def _reversed(ring: Ring) -> Ring:
+    return Ring(ring.level, ring.points[::-1].copy(), ring.below, ring.above)
+
+
+# ----------------------------------------------------------------------------- Fermat spirals
+
+
+@dataclass
+class _Tree:
+    rings: list[Ring]
+    child_rings: dict[int, list[int]]  # band component -> rings entered from it
+    child_comp: dict[int, int]  # ring -> band component on its far side (if not visited before)
+
+
+def _contour_tree(rings: list[Ring], root: int) -> tuple[_Tree, list[int]]:
+    """BFS over the ring/component graph from ``root``; returns the tree and the rings reached."""
+    by_comp: dict[int, list[int]] = {}
+    for i, r in enumerate(rings):
+        by_comp.setdefault(r.below, []).append(i)
+        by_comp.setdefault(r.above, []).append(i)
+    seen_comp, seen_ring = {root}, set()
+    child_rings: dict[int, list[int]] = {}
+    child_comp: dict[int, int] = {}
+    queue, order = [root], []
+    while queue:
+        c = queue.pop(0)
+        for i in by_comp.get(c, []):
+            if i in seen_ring:
+                continue
+            seen_ring.add(i)
+            order.append(i)
+            child_rings.setdefault(c, []).append(i)
+            other = rings[i].above if rings[i].below == c else rings[i].below
+            if other not in seen_comp:
+                seen_comp.add(other)
+                child_comp[i] = other
+                queue.append(other)
+    return _Tree(rings, child_rings, child_comp), order
+
+
+class _Builder:
+    """Builds one connected-Fermat-spiral piece per subtree, splicing children where they fit."""
+
+    def __init__(self, tree: _Tree, width: float):
+        self.tree = tree
+        self.w = width
+        self.gap = 2.0 * width
+        self.extra_pieces: list[np.ndarray] = []
+        self.splices = 0
+        self.failed = 0
+
+    def chain_from(self, ring_id: int) -> list[int]:
+        chain = [ring_id]
+        while True:
+            comp = self.tree.child_comp.get(chain[-1])
+            kids = self.tree.child_rings.get(comp, []) if comp is not None else []
+            if len(kids) != 1:
+                return chain
+            chain.append(kids[0])
+
+    def piece(self, ring_id: int, anchor: np.ndarray, host_tangent: np.ndarray | None,
+              siblings: list[int] = ()) -> np.ndarray:
+        """Fermat spiral of the chain starting at ``ring_id``, cut next to ``anchor``."""
+        chain = self.chain_from(ring_id)
+        rings = [self.tree.rings[i] for i in chain]
+        cuts: list[float] = []
+        point = anchor
+        tangent = host_tangent
+        for k, ring in enumerate(rings):
+            s, _ = _closest_s(ring, point)
+            if tangent is not None and ring.length > 0 and np.dot(_tangent(ring, s, self.w), tangent) < 0:
+                ring = _reversed(ring)
+                s = ring.length - s
+            rings[k] = ring
+            cuts.append(s)
+            point = _point_at(np.vstack([ring.points, ring.points[:1]]), ring.cumlen, s)
+            tangent = _tangent(ring, s, self.w)
+        dots = [r.length < _DOT_RING * self.w for r in rings]
+        # children hosted by the innermost ring (branches), root siblings by ring 0
+        hosted: dict[int, list[int]] = {}
+        last_comp = self.tree.child_comp.get(chain[-1])
+        if last_comp is not None and len(self.tree.child_rings.get(last_comp, [])) > 1:
+            hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
+        if siblings:
+            hosted.setdefault(0, []).extend(siblings)
+        g = self.gap
+        arcs: list[np.ndarray] = []
+        n = len(rings)
+        order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
+        for k in order:
+            ring, s = rings[k], cuts[k]
+            if dots[k]:
+                arcs.append(ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))][None])
+                for child in hosted.get(k, []):
+                    self._separate(child)
+                continue
+            if k % 2 == 0:
+                start, end, direction = s - g / 2, s + g / 2, -1
+            else:
+                start, end, direction = s + g / 2, s - g / 2, +1
+            arcs.append(self._ring_walk(ring, start, end, direction, hosted.get(k, []), s))
+        return np.vstack(arcs)
+
+    def _separate(self, ring_id: int) -> None:
+        self.failed += 1
+        first = self.tree.rings[ring_id].points[0]
+        self.extra_pieces.append(self.piece(ring_id, first, None))
+
+    def _ring_walk(self, ring: Ring, start: float, end: float, direction: int,
+                   children: list[int], cut: float) -> np.ndarray:
+        """Walk ``ring`` from ``start`` to ``end`` splicing in the spirals of ``children``."""
+        total = ring.length
+        span = (end - start) % total if direction > 0 else (start - end) % total
+        g = self.gap
+        closed = np.vstack([ring.points, ring.points[:1]])
+        cum = ring.cumlen
+        placed: list[tuple[float, int]] = []  # (offset along the walk, child)
+        for child in children:
+            s_child, dist = _closest_s(ring, self._nearest_point(child, ring))
+            offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
+            taken = [o for o, _ in placed]
+            ok_pos = None
+            for shift in np.r_[0.0, np.repeat(np.arange(1, 9) * 0.5 * self.w, 2) * np.tile([1, -1], 8)]:
+                o = offset + shift
+                if g <= o <= span - g and all(abs(o - t) >= 2 * g for t in taken):
+                    ok_pos = o
+                    break
+            if ok_pos is None or dist > 3.0 * self.w:
+                self._separate(child)
+                continue
+            placed.append((ok_pos, child))
+        placed.sort()
+        parts = []
+        cursor = 0.0
+        for o, child in placed:
+            s_at = start + direction * o
+            parts.append(_arc(ring, start + direction * cursor, s_at - direction * g / 2, direction))
+            anchor = _point_at(closed, cum, s_at % total)
+            tangent = direction * _tangent(ring, s_at % total, self.w)
+            parts.append(self.piece(child, anchor, tangent))
+            self.splices += 1
+            cursor = o + g / 2
+        parts.append(_arc(ring, start + direction * cursor, end, direction))
+        return np.vstack(parts)
+
+    def _nearest_point(self, child: int, host: Ring) -> np.ndarray:
+        pts = self.tree.rings[child].points
+        a = host.points
+        dist, idx = cKDTree(a).query(pts)
+        return a[idx[np.argmin(dist)]]
+
+
+# ----------------------------------------------------------------------------- layers
+
+
+def clean_surface(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Merge duplicate vertices and drop degenerate or repeated triangles (no other change)."""
+    m = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces), process=True, validate=False)
+    m.update_faces(m.nondegenerate_faces(height=1e-9))
+    m.update_faces(m.unique_faces())
+    m.remove_unreferenced_vertices()
+    return m
+
+
+def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None) -> LayerPaths:
+    """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1)."""
+    surface = clean_surface(mesh)
+    v, f = surface.vertices, surface.faces
+    dist = boundary_distance(v, f)
+    closed = int(np.isnan(dist).any())
+    finite = dist[np.isfinite(dist)]
+    top = float(finite.max()) if len(finite) else 0.0
+    levels = np.arange(0.5 * width, top, width)
+    rings, _ = contour_rings(v, f, dist, levels)
+    out = LayerPaths(pieces=[], rings=len(rings), closed_components=closed, max_distance=top)
+    if not rings:
+        return out
+    remaining = set(range(len(rings)))
+    builder = _Builder(_Tree(rings, {}, {}), width)
+    cursor = np.asarray(start, float) if start is not None else rings[0].points[0]
+    while remaining:
+        # root: the band-0 component of the outermost ring nearest to the cursor
+        outer = [i for i in remaining if rings[i].level == levels[0]] or list(remaining)
+        first = min(outer, key=lambda i: _closest_s(rings[i], cursor)[1])
+        root = rings[first].below
+        tree, order = _contour_tree(rings, root)
+        remaining -= set(order)
+        builder.tree = tree
+        roots = tree.child_rings.get(root, [])
+        main = max(roots, key=lambda i: rings[i].length)
+        piece = builder.piece(main, cursor, None, siblings=[i for i in roots if i != main])
+        out.pieces.append(piece)
+        out.regions += 1
+        cursor = piece[-1]
+    out.pieces.extend(builder.extra_pieces)
+    out.splices, out.failed_splices = builder.splices, builder.failed
+    out.pieces = _order_pieces(out.pieces, start)
+    out.travel = float(sum(np.linalg.norm(b[0] - a[-1]) for a, b in zip(out.pieces[:-1], out.pieces[1:])))
+    return out
+
+
+def _order_pieces(pieces: list[np.ndarray], start: np.ndarray | None) -> list[np.ndarray]:
+    """Greedy nearest-end ordering (pieces may be reversed) to shorten travels (§3.3.2 item 2)."""
+    left = list(pieces)
+    cursor = np.asarray(start, float) if start is not None else (left[0][0] if left else None)
+    ordered = []
+    while left:
+        d0 = [np.linalg.norm(p[0] - cursor) for p in left]
+        d1 = [np.linalg.norm(p[-1] - cursor) for p in left]
+        i = int(np.argmin(np.minimum(d0, d1)))
+        p = left.pop(i)
+        p = p if d0[i] <= d1[i] else p[::-1]
+        ordered.append(p)
+        cursor = p[-1]
+    return ordered
+
+
+def resample(polyline: np.ndarray, step: float) -> np.ndarray:
+    """Uniform re-sampling at spacing ≤ ``step`` (thesis §3.5.2: 1 mm) keeping sharp corners."""
+    p = np.asarray(polyline, np.float64)
+    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    p = p[np.r_[True, seg > 1e-9]]
+    if len(p) < 2:
+        return p[:1].copy()
+    d = np.diff(p, axis=0)
+    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    turn = np.arccos(np.clip(np.einsum("ij,ij->i", u[:-1], u[1:]), -1, 1))
+    keep = np.r_[0, np.nonzero(turn > _CORNER)[0] + 1, len(p) - 1]
+    cum = np.r_[0.0, np.cumsum(np.linalg.norm(d, axis=1))]
+    samples = []
+    for a, b in zip(keep[:-1], keep[1:]):
+        n = max(int(np.ceil((cum[b] - cum[a]) / step - 1e-9)), 1)
+        s = np.linspace(cum[a], cum[b], n + 1)[:-1]
+        samples.append(np.column_stack([np.interp(s, cum[a:b + 1], p[a:b + 1, i]) for i in range(3)]))
+    samples.append(p[-1:])
+    return np.vstack(samples)
+
+
+def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.ndarray, width: float,
+                      filament_diameter: float) -> np.ndarray:
+    """Filament length per segment (0 at each piece's first sample), thickness averaged on it."""
+    pos = np.asarray(positions, np.float64)
+    seg = np.r_[0.0, np.linalg.norm(np.diff(pos, axis=0), axis=1)]
+    h = np.r_[thickness[0], 0.5 * (thickness[1:] + thickness[:-1])]
+    e = filament_length(seg, width, h, filament_diameter)
+    first = np.r_[True, path_id[1:] != path_id[:-1]]
+    e[first] = 0.0
+    return e
