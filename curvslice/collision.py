@@ -1,0 +1,163 @@
+"""python-fcl scenes of a workcell: which arm poses collide (§3.5.3, §4.3.1 "Nodes ... with
+collision are excluded from the graph, ... checked by a collision detection library [FCL]").
+
+Bodies (mm): the robot's collision meshes (moving with their joints), the platform and the part
+printed so far (the union of earlier layers; both carried by the flange through T_P^E), and the
+static extruder (nozzle frame N) and obstacles (base frame B). Checked pairs: robot self-collision
+(except the pairs the robot declares allowed), every robot link and every carried body against every
+static body, and the carried bodies against every link except the one they are mounted on.
+A bounding-sphere test, vectorized over poses, sends only overlapping pairs to fcl.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import fcl
+import numpy as np
+import trimesh
+
+from curvslice.kinematics import Robot, fk, link_placements
+from curvslice.workcell import Body, Workcell
+
+
+@dataclass(frozen=True, eq=False)
+class _Shape:
+    name: str
+    obj: fcl.CollisionObject
+    center: np.ndarray  # bounding-sphere centre in the body frame
+    radius: float
+
+
+def _bvh(mesh: trimesh.Trimesh) -> fcl.BVHModel:
+    model = fcl.BVHModel()
+    model.beginModel(len(mesh.vertices), len(mesh.faces))
+    model.addSubModel(np.asarray(mesh.vertices, float), np.asarray(mesh.faces, np.int32))
+    model.endModel()
+    return model
+
+
+def _mesh_shape(name: str, mesh: trimesh.Trimesh) -> _Shape:
+    lo, hi = mesh.bounds
+    center = (lo + hi) / 2
+    radius = float(np.linalg.norm(mesh.vertices - center, axis=1).max())
+    return _Shape(name, fcl.CollisionObject(_bvh(mesh), fcl.Transform()), center, radius)
+
+
+def _body_shape(body: Body) -> _Shape:
+    if body.kind == "box":
+        geom = fcl.Box(*body.dims)
+        radius = float(np.linalg.norm(body.dims) / 2)
+    else:
+        geom = fcl.Cylinder(*body.dims)
+        radius = float(np.hypot(body.dims[0], body.dims[1] / 2))
+    return _Shape(body.name, fcl.CollisionObject(geom, fcl.Transform()), np.zeros(3), radius)
+
+
+def _set(obj: fcl.CollisionObject, T: np.ndarray) -> None:
+    obj.setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
+
+
+def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -> trimesh.Trimesh:
+    """The platform solid in the model frame P: the hull of the slice's platform vertices, or the
+    workcell's disc (radius, thickness) under z = 0."""
+    if platform_vertices is not None and len(platform_vertices) >= 4:
+        return trimesh.convex.convex_hull(np.asarray(platform_vertices, float))
+    disc = trimesh.creation.cylinder(radius=cell.platform_radius, height=cell.platform_thickness, sections=48)
+    disc.apply_translation([0, 0, -cell.platform_thickness / 2])
+    return disc
+
+
+class CollisionScene:
+    """Collision queries for arm configurations of one robot in one workcell (mm, rad)."""
+
+    def __init__(self, robot: Robot, cell: Workcell, platform_vertices: np.ndarray | None = None):
+        self.robot = robot
+        self.mount = cell.platform_mount
+        self.links = [_mesh_shape(s.link, s.mesh) for s in robot.links]
+        self.static = []
+        self.static_poses = []
+        for body in cell.extruder:
+            self.static.append(_body_shape(body))
+            self.static_poses.append(cell.nozzle @ body.pose)
+        for body in cell.obstacles:
+            self.static.append(_body_shape(body))
+            self.static_poses.append(body.pose)
+        for shape, pose in zip(self.static, self.static_poses):
+            _set(shape.obj, pose)
+        self.carried = [_mesh_shape("platform", platform_mesh(cell, platform_vertices))]
+        self._flange_link = max(range(len(robot.links)), key=lambda k: robot.links[k].joint)
+        self._build_pairs()
+
+    def set_part(self, mesh: trimesh.Trimesh | None) -> None:
+        """The printed part (model frame) carried on the platform; ``None`` or empty removes it."""
+        self.carried = self.carried[:1]
+        if mesh is not None and len(mesh.faces):
+            self.carried.append(_mesh_shape("part", mesh))
+        self._build_pairs()
+
+    def _build_pairs(self) -> None:
+        L, C, S = len(self.links), len(self.carried), len(self.static)
+        names = [s.link for s in self.robot.links]
+        pairs = []
+        for a in range(L):
+            for b in range(a + 1, L):
+                if frozenset((names[a], names[b])) not in self.robot.allowed_pairs and names[a] != names[b]:
+                    pairs.append((a, b))
+        moving = L + C
+        for a in range(moving):
+            pairs += [(a, moving + s) for s in range(S)]
+        for c in range(C):
+            pairs += [(L + c, a) for a in range(L) if a != self._flange_link]
+        self.pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        self.shapes = self.links + self.carried + self.static
+        self.radii = np.array([s.radius for s in self.shapes])
+
+    def _poses(self, q: np.ndarray) -> np.ndarray:
+        """World poses (n, bodies, 4, 4) of links, carried bodies and static bodies."""
+        n = len(q)
+        links = link_placements(self.robot, q)
+        carried = (fk(self.robot, q) @ self.mount)[:, None].repeat(len(self.carried), axis=1)
+        static = np.broadcast_to(np.array(self.static_poses).reshape(-1, 4, 4), (n, len(self.static), 4, 4))
+        return np.concatenate([links, carried, static], axis=1)
+
+    def collisions(self, q: np.ndarray) -> np.ndarray:
+        """(n,) bool: True where configuration q[i] (rad) puts any checked pair in contact."""
+        q = np.atleast_2d(np.asarray(q, float))
+        if len(q) == 0 or len(self.pairs) == 0:
+            return np.zeros(len(q), bool)
+        poses = self._poses(q)
+        local = np.array([s.center for s in self.shapes])
+        centers = np.einsum("nbij,bj->nbi", poses[..., :3, :3], local) + poses[..., :3, 3]
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        near = np.linalg.norm(centers[:, a] - centers[:, b], axis=2) <= self.radii[a] + self.radii[b]
+        hit = np.zeros(len(q), bool)
+        request = fcl.CollisionRequest()
+        n_static = len(self.static)
+        n_moving = len(self.shapes) - n_static
+        for i in np.flatnonzero(near.any(axis=1)):
+            placed = set()
+            for k in np.flatnonzero(near[i]):
+                pa, pb = int(a[k]), int(b[k])
+                for body in (pa, pb):
+                    if body < n_moving and body not in placed:
+                        _set(self.shapes[body].obj, poses[i, body])
+                        placed.add(body)
+                result = fcl.CollisionResult()
+                if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, result):
+                    hit[i] = True
+                    break
+        return hit
+
+    def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
+        """Names of all pairs in contact at one configuration (for reports and the verifier)."""
+        poses = self._poses(np.atleast_2d(np.asarray(q, float)))[0]
+        n_moving = len(self.shapes) - len(self.static)
+        for body in range(n_moving):
+            _set(self.shapes[body].obj, poses[body])
+        request = fcl.CollisionRequest()
+        out = []
+        for pa, pb in self.pairs:
+            if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, fcl.CollisionResult()):
+                out.append((self.shapes[pa].name, self.shapes[pb].name))
+        return out

@@ -1,0 +1,354 @@
+"""Pose-continuous motion: ladder graph and multi-source shortest path (§3.5.3, §4.3.1, Fig. 4.2).
+
+Each waypoint (c_j, t_j) gives a rung of nodes: every analytic IK solution of p rotations about the
+nozzle axis (Eq. 4.3), inside the joint limits and free of collision. An edge joins consecutive
+rungs when ‖Δq‖∞/Δt ≤ ξ (Eq. 4.4, Δt = ‖c_{j+1} − c_j‖/v̄) with weight ‖Δq‖₁ (Eq. 3.4) or the
+weighted quadratic Δqᵀ W Δq (Eq. 4.5); distances are circular on joints that can turn a full
+revolution ("winding effect", §4.3.1). The graph is a DAG, so the multi-source Dijkstra of the
+thesis (all first-rung nodes as sources) is computed rung by rung, vectorized over node pairs.
+Where no node of a rung is reachable the motion splits there and a new one starts (Fig. 3.11b);
+when a layer needs splits, p is doubled and the search repeated (§4.3.1).
+Collisions are checked lazily: only nodes on the current best path are tested, a colliding rung is
+tested whole and the search resumed from it; the result equals checking every node first.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from curvslice.kinematics import Robot, ik
+from curvslice.workcell import Workcell, flange_poses
+
+TWO_PI = 2 * np.pi
+
+
+@dataclass
+class LadderPath:
+    """A shortest path through a ladder: node index per rung (-1 on empty rungs), segment id per
+    rung (-1 on empty rungs; a new id after each disconnection), and the total edge cost."""
+
+    node: np.ndarray
+    segment: np.ndarray
+    cost: float
+
+
+@dataclass
+class Motion:
+    """Joint trajectory of one sequence of waypoints (one layer)."""
+
+    q: np.ndarray  # (m, 6) rad, unwound joint values; NaN rows for skipped waypoints
+    t: np.ndarray  # (m,) s from the first waypoint; NaN for skipped waypoints
+    segment: np.ndarray  # (m,) int, a new value starts a new smooth motion; -1 if skipped
+    rotations: int  # p finally used
+    solutions: np.ndarray  # (m,) int, IK solutions per waypoint within the joint limits
+    splits: list[int]  # waypoint indices where the graph disconnects (new motion, Fig. 3.11b)
+    winding_splits: list[int]  # waypoint indices where a joint would leave its range by winding
+    cost: float  # Eq. 3.4 (or 4.6) summed over the segments
+    collision_checks: int
+
+
+def circular_joints(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+    """Joints whose range exceeds one revolution: their distances are measured on the circle."""
+    return (np.asarray(upper) - np.asarray(lower)) > TWO_PI + 1e-9
+
+
+def edge_weights(
+    qa: np.ndarray,
+    qb: np.ndarray,
+    dt: float,
+    max_speed: float,
+    circular: np.ndarray,
+    cost: str = "l1",
+    weights: np.ndarray | None = None,
+) -> np.ndarray:
+    """(Ka, Kb) edge weights between two rungs; ``inf`` where ‖Δq‖∞/Δt > ξ (Eq. 4.4) or a node is
+    absent (NaN). ``cost`` = "l1" (Eq. 3.4, weighted by ``weights``) or "quadratic" (Eq. 4.5)."""
+    w = np.ones(qa.shape[-1]) if weights is None else np.asarray(weights, float)
+    total = np.zeros((len(qa), len(qb)))
+    largest = np.zeros((len(qa), len(qb)))
+    for j in range(qa.shape[-1]):  # one (Ka, Kb) plane per joint keeps the work in cache
+        d = np.abs(qb[None, :, j] - qa[:, None, j])
+        if circular[j]:
+            np.minimum(d, TWO_PI - d, out=d)
+        np.maximum(largest, d, out=largest)
+        if cost != "l1":
+            d *= d
+        total += w[j] * d
+    total[~(largest <= max_speed * dt)] = np.inf  # NaN nodes compare False -> excluded
+    return total
+
+
+def _relax(
+    q: np.ndarray,
+    valid: np.ndarray,
+    dt: np.ndarray,
+    best: np.ndarray,
+    pred: np.ndarray,
+    start: int,
+    edge: Callable[[int], np.ndarray],
+) -> None:
+    """Fill ``best``/``pred`` for rungs ``start..m-1`` (rung start-1 already final)."""
+    m = len(q)
+    for i in range(max(start, 0), m):
+        if i == 0 or not np.isfinite(best[i - 1]).any():
+            best[i] = np.where(valid[i], 0.0, np.inf)  # sources: a new motion starts here
+            pred[i] = -1
+            continue
+        total = best[i - 1][:, None] + edge(i - 1)
+        arg = np.argmin(total, axis=0)
+        best[i] = total[arg, np.arange(total.shape[1])]
+        best[i][~valid[i]] = np.inf
+        pred[i] = np.where(np.isfinite(best[i]), arg, -1)
+        if not np.isfinite(best[i]).any():  # disconnected: restart from every node of this rung
+            best[i] = np.where(valid[i], 0.0, np.inf)
+
+
+def _backtrack(best: np.ndarray, pred: np.ndarray) -> LadderPath:
+    m = len(best)
+    node = np.full(m, -1)
+    i = m - 1
+    cost = 0.0
+    while i >= 0:
+        if not np.isfinite(best[i]).any():
+            i -= 1
+            continue
+        k = int(np.argmin(best[i]))
+        cost += float(best[i][k])
+        while True:
+            node[i] = k
+            if pred[i][k] < 0:
+                break
+            k = int(pred[i][k])
+            i -= 1
+        i -= 1
+    starts = (node >= 0) & np.r_[True, pred[np.arange(1, m), np.maximum(node[1:], 0)] < 0]
+    segment = np.where(node >= 0, np.cumsum(starts) - 1, -1)
+    return LadderPath(node, segment, cost)
+
+
+def shortest_path(
+    q: np.ndarray,
+    valid: np.ndarray,
+    dt: np.ndarray,
+    max_speed: float,
+    circular: np.ndarray,
+    cost: str = "l1",
+    weights: np.ndarray | None = None,
+    node_ok: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+) -> tuple[LadderPath, np.ndarray, int]:
+    """Multi-source shortest path through a ladder (m rungs, K nodes, 6 joints), rung by rung.
+
+    ``q`` (m, K, 6), ``valid`` (m, K), ``dt`` (m-1,) seconds. ``node_ok(rungs, nodes)`` (optional)
+    returns which of the given nodes are usable (e.g. collision-free); it is called lazily on path
+    nodes and then on whole rungs. Returns the path, the final validity mask, and how many nodes
+    ``node_ok`` was asked about.
+    """
+    q = np.where(valid[..., None], q, np.nan)
+    valid = valid.copy()
+    m, K = valid.shape
+    best = np.full((m, K), np.inf)
+    pred = np.full((m, K), -1)
+    edge = lambda i: edge_weights(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)  # noqa: E731
+    _relax(q, valid, dt, best, pred, 0, edge)
+    checked = np.zeros((m, K), bool)
+    asked = 0
+    while True:
+        path = _backtrack(best, pred)
+        if node_ok is None:
+            return path, valid, asked
+        rungs = np.flatnonzero(path.node >= 0)
+        rungs = rungs[~checked[rungs, path.node[rungs]]]
+        if len(rungs) == 0:
+            return path, valid, asked
+        ok = node_ok(rungs, path.node[rungs])
+        asked += len(rungs)
+        checked[rungs, path.node[rungs]] = True
+        bad = rungs[~ok]
+        if len(bad) == 0:
+            continue
+        rr, kk = np.nonzero(valid[bad] & ~checked[bad])
+        rr = bad[rr]
+        if len(rr):
+            ok = node_ok(rr, kk)
+            asked += len(rr)
+            checked[rr, kk] = True
+            valid[rr[~ok], kk[~ok]] = False
+        valid[bad, path.node[bad]] = False
+        q[~valid] = np.nan
+        _relax(q, valid, dt, best, pred, int(bad.min()), edge)
+
+
+def reference_shortest_path(
+    q: np.ndarray,
+    valid: np.ndarray,
+    dt: np.ndarray,
+    max_speed: float,
+    circular: np.ndarray,
+    cost: str = "l1",
+    weights: np.ndarray | None = None,
+) -> LadderPath:
+    """The same problem solved by scipy.sparse.csgraph.dijkstra on the explicit graph (tests only):
+    multi-source from the first reachable rung, a new search after every disconnection."""
+    q = np.where(valid[..., None], q, np.nan)
+    m, K = valid.shape
+    rows, cols, vals = [], [], []
+    for i in range(m - 1):
+        w = edge_weights(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)
+        a, b = np.nonzero(np.isfinite(w))
+        rows.append(i * K + a)
+        cols.append((i + 1) * K + b)
+        vals.append(w[a, b] + 1e-300)  # keep zero-weight edges as edges
+    graph = csr_matrix(
+        (np.concatenate(vals) if vals else [], (np.concatenate(rows) if rows else [], np.concatenate(cols) if cols else [])),
+        shape=(m * K, m * K),
+    )
+    node = np.full(m, -1)
+    segment = np.full(m, -1)
+    total = 0.0
+    seg = 0
+    i = 0
+    while i < m:
+        if not valid[i].any():
+            i += 1
+            continue
+        sources = i * K + np.flatnonzero(valid[i])
+        dist, predecessors, _ = dijkstra(graph, directed=True, indices=sources, min_only=True, return_predecessors=True)
+        dist = dist.reshape(m, K)
+        reach = np.isfinite(dist).any(axis=1)
+        end = i
+        while end + 1 < m and reach[end + 1]:
+            end += 1
+        k = int(np.argmin(dist[end]))
+        total += float(dist[end, k])
+        v = end * K + k
+        while v >= 0:
+            node[v // K] = v % K
+            segment[v // K] = seg
+            v = int(predecessors[v]) if v // K > i else -1
+        seg += 1
+        i = end + 1
+    return LadderPath(node, segment, total)
+
+
+def step_times(positions: np.ndarray, speed: np.ndarray | float, min_step: float) -> np.ndarray:
+    """Δt_j = ‖c_{j+1} − c_j‖ / v̄_j (§3.5.3), floored at ``min_step`` seconds; (m-1,)."""
+    dist = np.linalg.norm(np.diff(np.asarray(positions, float), axis=0), axis=1)
+    return np.maximum(dist / np.broadcast_to(np.asarray(speed, float), dist.shape), min_step)
+
+
+def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rungs of IK nodes: q (m, 8p, 6) and valid (m, 8p) (solution exists and is inside the limits).
+
+    Joints with more than one revolution of range keep angles in [-π, π); the others take the
+    representative inside their limits (none: the node is dropped).
+    """
+    m = len(positions)
+    T = flange_poses(cell, positions, normals, p).reshape(-1, 4, 4)
+    q, ok = ik(robot, T)
+    lo, hi = cell.limits(robot)
+    circ = circular_joints(lo, hi)
+    rep = lo + (q - lo) % TWO_PI
+    q = np.where(circ, q, rep)
+    ok &= ((q >= lo - 1e-12) & (q <= hi + 1e-12)).all(axis=-1)
+    return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
+
+
+def unwind(q: np.ndarray, segment: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """Actual joint values along a path: circular joints follow their shortest turns and are shifted
+    by whole revolutions to stay inside their limits; where a segment would wind beyond a joint's
+    range it is split. Returns the unwound q (NaN where segment < 0) and the added split indices."""
+    out = np.full_like(q, np.nan)
+    circ = circular_joints(lower, upper)
+    splits: list[int] = []
+    rows = np.flatnonzero(segment >= 0)
+    if len(rows) == 0:
+        return out, splits
+    bounds = np.flatnonzero(np.r_[True, segment[rows][1:] != segment[rows][:-1]])
+    pieces = [rows[b:e] for b, e in zip(bounds, np.r_[bounds[1:], len(rows)])]
+    centre = (lower + upper) / 2
+    while pieces:
+        idx = pieces.pop(0)
+        step = np.diff(q[idx], axis=0)
+        step[:, circ] = (step[:, circ] + np.pi) % TWO_PI - np.pi
+        path = q[idx[0]] + np.vstack([np.zeros(6), np.cumsum(step, axis=0)])
+        span = np.maximum.accumulate(path, axis=0) - np.minimum.accumulate(path, axis=0)
+        over = (span > (upper - lower) + 1e-12).any(axis=1)
+        if over.any():
+            cut = int(np.argmax(over))
+            splits.append(int(idx[cut]))
+            pieces.insert(0, idx[cut:])
+            idx, path = idx[:cut], path[:cut]
+        lo_k = np.ceil((lower - path.min(axis=0)) / TWO_PI - 1e-12)
+        hi_k = np.floor((upper - path.max(axis=0)) / TWO_PI + 1e-12)
+        want = np.round((centre - path.mean(axis=0)) / TWO_PI)
+        k = np.where(circ, np.clip(want, lo_k, hi_k), 0.0)
+        out[idx] = path + TWO_PI * k
+    return out, sorted(splits)
+
+
+def plan_motion(
+    robot: Robot,
+    cell: Workcell,
+    positions: np.ndarray,
+    normals: np.ndarray,
+    dt: np.ndarray,
+    collides: Callable[[np.ndarray], np.ndarray] | None = None,
+    cost: str = "l1",
+    weights: np.ndarray | None = None,
+    max_rotations: int | None = None,
+) -> Motion:
+    """Joint trajectory for one waypoint sequence (a layer's tool-paths, in print order).
+
+    ``dt`` (m-1,) are the step times; ``collides(q) -> bool`` marks poses in collision. p starts at
+    ``cell.rotations`` and doubles while the motion needs splits, up to ``max_rotations``
+    (default 4 p).
+    """
+    positions = np.asarray(positions, float)
+    normals = np.asarray(normals, float)
+    lo, hi = cell.limits(robot)
+    circ = circular_joints(lo, hi)
+    p = cell.rotations
+    limit = max_rotations or 4 * cell.rotations
+    asked_total = 0
+    while True:
+        q, valid = ladder(robot, cell, positions, normals, p)
+        solutions = valid.sum(axis=1)
+        node_ok = None if collides is None else (lambda r, k: ~collides(q[r, k]))  # noqa: E731
+        path, valid_final, asked = shortest_path(q, valid, dt, cell.max_joint_speed, circ, cost, weights, node_ok)
+        asked_total += asked
+        starts = np.flatnonzero(np.r_[False, np.diff(path.segment[path.segment >= 0]) != 0])
+        if (len(starts) == 0 and (path.node >= 0).all()) or p * 2 > limit:
+            break
+        p *= 2
+    rows = np.flatnonzero(path.node >= 0)
+    chosen = np.full((len(positions), 6), np.nan)
+    chosen[rows] = q[rows, path.node[rows]]
+    qa, winding = unwind(chosen, path.segment, lo, hi)
+    splits = [int(rows[s]) for s in starts]
+    segment = path.segment.copy()
+    for w in winding:
+        segment[w:][segment[w:] >= 0] += 1
+    times = _timestamps(qa, segment, dt, cell.max_joint_speed)
+    return Motion(qa, times, segment, p, solutions, splits, winding, path.cost, asked_total)
+
+
+def _timestamps(q: np.ndarray, segment: np.ndarray, dt: np.ndarray, max_speed: float) -> np.ndarray:
+    """Seconds from the first waypoint: Δt inside a segment; a joint move at ξ between segments."""
+    t = np.full(len(q), np.nan)
+    clock, last = 0.0, -1
+    elapsed = np.r_[0.0, np.cumsum(dt)]
+    for i in np.flatnonzero(segment >= 0):
+        if last < 0:
+            clock = 0.0
+        elif segment[i] == segment[last]:
+            clock += elapsed[i] - elapsed[last]
+        else:
+            clock += max(float(np.abs(q[i] - q[last]).max()) / max_speed, elapsed[i] - elapsed[last])
+        t[i] = clock
+        last = i
+    return t

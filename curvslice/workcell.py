@@ -1,0 +1,286 @@
+"""The robot workcell: a fixed nozzle, a robot holding the platform, and the frames of Eq. 2.3.
+
+Frames (thesis §2.5, Fig. 2.7; §3.5.3): B the robot base (URDF root), E the flange (``tool0``),
+P the platform = model frame (Z up, platform top at z = 0), O the deposition frame at a waypoint
+(origin c_j, z axis t_j pointing from the part towards the nozzle), N the nozzle frame (origin at
+the nozzle tip, z axis along the nozzle towards the extruder body). A waypoint is printed when
+
+    T_E^B  T_P^E  T_O^P = T_N^B            (Eq. 2.3)
+
+so the flange pose is T_E^B = T_N^B (T_O^P)^-1 (T_P^E)^-1. The rotation θ of O about t_j is free
+(Eq. 4.3); :func:`flange_poses` samples p values of it uniformly in [-π, π).
+
+Workcell file (JSON; lengths in mm, angles in degrees, as a person edits it)::
+
+    {
+      "name": "ur5-default",
+      "robot": "ur5",                                  # ur3 | ur5 | ur10 | irb120
+      "nozzle": {"xyz_mm": [x, y, z], "rpy_deg": [r, p, y]},          # T_N^B
+      "platform_mount": {"xyz_mm": [...], "rpy_deg": [...]},          # T_P^E
+      "platform": {"radius_mm": 64, "thickness_mm": 21},              # disc under z = 0 in P
+      "extruder": [body, ...],        # bodies in the nozzle frame N (the tip itself is free)
+      "obstacles": [body, ...],       # bodies in the base frame B (table, frame posts)
+      "joint_limits_deg": {"lower": [...6], "upper": [...6]},        # optional, narrows the URDF's
+      "max_joint_speed_rad_s": 1.0,   # ξ of §3.5.3
+      "linear_speed_mm_s": 10.0,      # v̄ of §3.5.3 (used when the tool-path gives no feed)
+      "travel_speed_mm_s": 50.0,      # jumps between paths
+      "min_step_time_s": 0.008,       # floor on Δt (one controller cycle) for coincident waypoints
+      "rotations": 30                 # p of §3.5.3 / n of Eq. 4.3
+    }
+
+A body is ``{"name": str, "type": "box", "size_mm": [sx, sy, sz], "xyz_mm": [...], "rpy_deg": [...]}``
+or ``{"name": str, "type": "cylinder", "radius_mm": r, "length_mm": h, "xyz_mm": [...], "rpy_deg": [...]}``
+(centred on its pose, cylinder axis = its z).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from curvslice.errors import CurvsliceError
+from curvslice.kinematics import ROBOT_NAMES, Robot
+
+
+@dataclass(frozen=True)
+class Body:
+    """A box or cylinder obstacle, centred on ``pose`` (4x4, mm); cylinder axis = local z."""
+
+    name: str
+    kind: str  # "box" | "cylinder"
+    dims: tuple[float, ...]  # box (sx, sy, sz) | cylinder (radius, length), mm
+    pose: np.ndarray = field(repr=False)
+
+
+@dataclass(frozen=True)
+class Workcell:
+    """A fixed-nozzle cell (Eq. 2.3). Matrices are 4x4 in mm; speeds in mm/s and rad/s."""
+
+    name: str
+    robot: str
+    nozzle: np.ndarray = field(repr=False)  # T_N^B
+    platform_mount: np.ndarray = field(repr=False)  # T_P^E
+    platform_radius: float = 64.0
+    platform_thickness: float = 21.0
+    extruder: tuple[Body, ...] = ()
+    obstacles: tuple[Body, ...] = ()
+    joint_lower: np.ndarray | None = field(default=None, repr=False)
+    joint_upper: np.ndarray | None = field(default=None, repr=False)
+    max_joint_speed: float = 1.0
+    linear_speed: float = 10.0
+    travel_speed: float = 50.0
+    min_step_time: float = 0.008
+    rotations: int = 30
+
+    def limits(self, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
+        """Joint limits (rad): the URDF's, narrowed by the workcell's own when given."""
+        lo, hi = robot.lower.copy(), robot.upper.copy()
+        if self.joint_lower is not None:
+            lo = np.maximum(lo, self.joint_lower)
+        if self.joint_upper is not None:
+            hi = np.minimum(hi, self.joint_upper)
+        return lo, hi
+
+    def with_rotations(self, rotations: int) -> Workcell:
+        if rotations < 1:
+            raise CurvsliceError(f"--rotations must be at least 1 (got {rotations})")
+        return replace(self, rotations=int(rotations))
+
+
+def pose_matrix(xyz_mm, rpy_deg) -> np.ndarray:
+    """4x4 pose from a translation (mm) and fixed-axis roll-pitch-yaw (degrees, URDF order)."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", rpy_deg, degrees=True).as_matrix()
+    T[:3, 3] = xyz_mm
+    return T
+
+
+def _pose_dict(T: np.ndarray) -> dict[str, list[float]]:
+    rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True)
+    return {"xyz_mm": [round(float(v), 9) for v in T[:3, 3]], "rpy_deg": [round(float(v), 9) for v in rpy]}
+
+
+def _vector(spec: dict, key: str, n: int, where: str) -> list[float]:
+    value = spec.get(key, [0.0] * n)
+    if not (isinstance(value, list) and len(value) == n and all(isinstance(v, (int, float)) for v in value)):
+        raise CurvsliceError(f"workcell {where}: '{key}' must be a list of {n} numbers")
+    return [float(v) for v in value]
+
+
+def _pose(spec: dict, where: str) -> np.ndarray:
+    if not isinstance(spec, dict):
+        raise CurvsliceError(f"workcell: '{where}' must be an object with xyz_mm and rpy_deg")
+    return pose_matrix(_vector(spec, "xyz_mm", 3, where), _vector(spec, "rpy_deg", 3, where))
+
+
+def _body(spec: dict, where: str) -> Body:
+    name = str(spec.get("name", where))
+    kind = spec.get("type")
+    if kind == "box":
+        dims = tuple(_vector(spec, "size_mm", 3, name))
+    elif kind == "cylinder":
+        dims = (float(spec.get("radius_mm", 0)), float(spec.get("length_mm", 0)))
+    else:
+        raise CurvsliceError(f"workcell body '{name}': type must be 'box' or 'cylinder' (got {kind!r})")
+    if min(dims) <= 0:
+        raise CurvsliceError(f"workcell body '{name}': sizes must be positive (got {list(dims)})")
+    return Body(name, kind, dims, _pose(spec, name))
+
+
+def _body_dict(body: Body) -> dict[str, object]:
+    out: dict[str, object] = {"name": body.name, "type": body.kind}
+    if body.kind == "box":
+        out["size_mm"] = list(body.dims)
+    else:
+        out["radius_mm"], out["length_mm"] = body.dims
+    out.update(_pose_dict(body.pose))
+    return out
+
+
+def workcell_from_dict(spec: dict, source: str = "workcell") -> Workcell:
+    """Validate and build a :class:`Workcell` from its JSON object (see the module docstring)."""
+    robot = str(spec.get("robot", "")).lower()
+    if robot not in ROBOT_NAMES:
+        raise CurvsliceError(f"{source}: 'robot' must be one of {', '.join(ROBOT_NAMES)} (got {robot!r})")
+    if "nozzle" not in spec:
+        raise CurvsliceError(f"{source}: 'nozzle' pose (T_N^B) is required")
+    platform = spec.get("platform", {})
+    limits = spec.get("joint_limits_deg")
+    lower = upper = None
+    if limits is not None:
+        lower = np.radians(_vector(limits, "lower", 6, "joint_limits_deg"))
+        upper = np.radians(_vector(limits, "upper", 6, "joint_limits_deg"))
+        if np.any(lower >= upper):
+            raise CurvsliceError(f"{source}: joint_limits_deg lower must be below upper for every joint")
+    cell = Workcell(
+        name=str(spec.get("name", robot)),
+        robot=robot,
+        nozzle=_pose(spec["nozzle"], "nozzle"),
+        platform_mount=_pose(spec.get("platform_mount", {}), "platform_mount"),
+        platform_radius=float(platform.get("radius_mm", 64.0)),
+        platform_thickness=float(platform.get("thickness_mm", 21.0)),
+        extruder=tuple(_body(b, f"extruder[{i}]") for i, b in enumerate(spec.get("extruder", []))),
+        obstacles=tuple(_body(b, f"obstacles[{i}]") for i, b in enumerate(spec.get("obstacles", []))),
+        joint_lower=lower,
+        joint_upper=upper,
+        max_joint_speed=float(spec.get("max_joint_speed_rad_s", 1.0)),
+        linear_speed=float(spec.get("linear_speed_mm_s", 10.0)),
+        travel_speed=float(spec.get("travel_speed_mm_s", 50.0)),
+        min_step_time=float(spec.get("min_step_time_s", 0.008)),
+        rotations=int(spec.get("rotations", 30)),
+    )
+    for key in ("max_joint_speed", "linear_speed", "travel_speed", "min_step_time", "rotations"):
+        if getattr(cell, key) <= 0:
+            raise CurvsliceError(f"{source}: '{key}' must be positive")
+    return cell
+
+
+def workcell_to_dict(cell: Workcell) -> dict[str, object]:
+    """The JSON object of a workcell (inverse of :func:`workcell_from_dict`)."""
+    out: dict[str, object] = {
+        "name": cell.name,
+        "robot": cell.robot,
+        "nozzle": _pose_dict(cell.nozzle),
+        "platform_mount": _pose_dict(cell.platform_mount),
+        "platform": {"radius_mm": cell.platform_radius, "thickness_mm": cell.platform_thickness},
+        "extruder": [_body_dict(b) for b in cell.extruder],
+        "obstacles": [_body_dict(b) for b in cell.obstacles],
+    }
+    if cell.joint_lower is not None and cell.joint_upper is not None:
+        out["joint_limits_deg"] = {
+            "lower": [round(float(v), 9) for v in np.degrees(cell.joint_lower)],
+            "upper": [round(float(v), 9) for v in np.degrees(cell.joint_upper)],
+        }
+    out.update(
+        max_joint_speed_rad_s=cell.max_joint_speed,
+        linear_speed_mm_s=cell.linear_speed,
+        travel_speed_mm_s=cell.travel_speed,
+        min_step_time_s=cell.min_step_time,
+        rotations=cell.rotations,
+    )
+    return out
+
+
+def load_workcell(spec: str | Path) -> Workcell:
+    """A shipped workcell by robot name (``ur5``, ``ur3``, ``ur10``, ``irb120``) or a JSON file."""
+    text: str
+    key = str(spec).lower()
+    if key in ROBOT_NAMES:
+        text = resources.files("curvslice").joinpath("data", f"workcell_{key}.json").read_text()
+        source = f"workcell_{key}.json"
+    else:
+        path = Path(spec)
+        if not path.is_file():
+            raise CurvsliceError(f"--robot {spec}: neither a robot name ({', '.join(ROBOT_NAMES)}) nor a workcell file")
+        text, source = path.read_text(), str(path)
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise CurvsliceError(f"{source} is not valid JSON: {exc}") from None
+    if not isinstance(data, dict):
+        raise CurvsliceError(f"{source} must hold a JSON object")
+    return workcell_from_dict(data, source)
+
+
+def save_workcell(cell: Workcell, path: Path) -> None:
+    """Write the workcell as JSON (``workcell.json`` beside the robot programs)."""
+    Path(path).write_text(json.dumps(workcell_to_dict(cell), indent=2) + "\n")
+
+
+def deposition_frames(positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+    """T_O^P (n, p, 4, 4): origin c_j, z = t_j, turned by each θ about t_j (Eq. 4.3).
+
+    The θ = 0 frame is the minimal rotation taking +Z to t_j, so it varies smoothly along a path.
+    """
+    t = np.asarray(normals, float)
+    t = t / np.linalg.norm(t, axis=1, keepdims=True)
+    # Rodrigues' minimal rotation z -> t: R = I + [v]x + [v]x^2 / (1 + c), v = z x t, c = z.t
+    c = t[:, 2]
+    if np.any(c <= -1 + 1e-9):
+        raise CurvsliceError("a tool orientation points straight down (-Z): no nozzle can reach it")
+    v = np.stack([-t[:, 1], t[:, 0], np.zeros(len(t))], axis=1)
+    K = np.zeros((len(t), 3, 3))
+    K[:, 0, 1], K[:, 0, 2] = -v[:, 2], v[:, 1]
+    K[:, 1, 0], K[:, 1, 2] = v[:, 2], -v[:, 0]
+    K[:, 2, 0], K[:, 2, 1] = -v[:, 1], v[:, 0]
+    R0 = np.eye(3) + K + K @ K / (1.0 + c)[:, None, None]
+    th = np.asarray(thetas, float)
+    Rz = np.zeros((len(th), 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1] = np.cos(th), -np.sin(th), np.sin(th), np.cos(th)
+    Rz[:, 2, 2] = 1.0
+    out = np.zeros((len(t), len(th), 4, 4))
+    out[..., :3, :3] = R0[:, None] @ Rz[None]
+    out[..., :3, 3] = np.asarray(positions, float)[:, None]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def rotation_samples(p: int) -> np.ndarray:
+    """p angles θ uniformly spaced in [-π, π) (Eq. 4.3)."""
+    return -np.pi + 2 * np.pi * np.arange(p) / p
+
+
+def flange_poses(cell: Workcell, positions: np.ndarray, normals: np.ndarray, p: int) -> np.ndarray:
+    """Flange poses T_E^B (n, p, 4, 4) realizing each waypoint at the nozzle tip (Eq. 2.3)."""
+    T_OP = deposition_frames(positions, normals, rotation_samples(p))
+    inv_OP = np.zeros_like(T_OP)
+    Rt = np.swapaxes(T_OP[..., :3, :3], -1, -2)
+    inv_OP[..., :3, :3] = Rt
+    inv_OP[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T_OP[..., :3, 3])
+    inv_OP[..., 3, 3] = 1.0
+    return cell.nozzle @ inv_OP @ np.linalg.inv(cell.platform_mount)
+
+
+def waypoints_from_flange(cell: Workcell, flange: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of Eq. 2.3: the nozzle tip and axis expressed in the model frame P, per flange pose.
+
+    Returns positions (n, 3) mm and unit tool orientations (n, 3) (from the part to the nozzle).
+    """
+    T_PB = np.asarray(flange, float) @ cell.platform_mount
+    T_NP = np.linalg.inv(T_PB) @ cell.nozzle
+    return T_NP[..., :3, 3], T_NP[..., :3, 2]
