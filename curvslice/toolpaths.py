@@ -20,7 +20,9 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9):
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from time import perf_counter
 
 import numpy as np
 import scipy.sparse as sp
@@ -28,6 +30,8 @@ import trimesh
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from curvslice import orientation as ori
+from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.flow import filament_length
 from curvslice.geodesic import boundary_distance
 
@@ -467,3 +471,119 @@ def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.
     first = np.r_[True, path_id[1:] != path_id[:-1]]
     e[first] = 0.0
     return e
+
+
+# ----------------------------------------------------------------------------- all layers
+
+
+@dataclass(frozen=True)
+class ToolpathSettings:
+    """Parameters of the tool-path stage (mm, mm/min, radians)."""
+
+    path_width: float = 1.0  #: iso-contour spacing; default: the nozzle diameter
+    step: float = 1.0  #: re-sampling distance (thesis §3.5.2: 1 mm)
+    filament_diameter: float = 1.75
+    feed: float = 600.0  #: nozzle speed along the path, mm/min
+    max_angle: float = float(np.radians(10.0))  #: low-pass / slerp threshold (§3.5.2)
+    max_tilt: float = float(np.radians(75.0))  #: largest angle between orientation and layer normal
+    window: int = 8  #: earlier layers searched for the closest point (Eq. 3.3)
+    min_thickness: float = 0.1  #: local layer thickness clamp, as a share of the path width
+    max_thickness: float = 1.0
+
+
+@dataclass
+class Toolpaths:
+    """Samples of all layers in print order (the ``toolpaths.npz`` contract) and per-layer figures."""
+
+    positions: np.ndarray
+    normals: np.ndarray
+    layer: np.ndarray
+    path: np.ndarray
+    extrusion: np.ndarray
+    thickness: np.ndarray
+    feed: np.ndarray
+    layers: list[dict[str, float]]
+    seconds: dict[str, float]
+
+
+def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings = ToolpathSettings(),
+                   progress=None) -> Toolpaths:
+    """Tool-paths, orientations and extrusion for working surfaces in print order (§3.5.1-3.5.2).
+
+    Layer 1 stands on the platform top ``z = 0``; every later layer also on the ``window``
+    layers before it (Eq. 3.3). ``progress`` (an iterable wrapper such as tqdm) is optional.
+    """
+    w = settings.path_width
+    out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness")}
+    earlier: list[tuple[np.ndarray, cKDTree]] = []
+    per_layer: list[dict[str, float]] = []
+    seconds = {"spirals": 0.0, "orientation": 0.0}
+    next_path, cursor = 0, None
+    layer_iter = enumerate(surfaces, start=1)
+    for index, mesh in (progress(layer_iter, total=len(surfaces)) if progress else layer_iter):
+        t0 = perf_counter()
+        surface = clean_surface(mesh)
+        paths = layer_paths(surface, w, start=cursor)
+        samples = [resample(p, settings.step) for p in paths.pieces]
+        samples = [s for s in samples if len(s) >= 2]
+        t1 = perf_counter()
+        tri = surface.triangles
+        own_tree = cKDTree(tri.mean(axis=1)) if len(tri) else None
+        row = {"layer": index, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
+               "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
+               "splices": paths.splices, "failed_splices": paths.failed_splices,
+               "closed_components": paths.closed_components, "samples": 0, "length_mm": 0.0}
+        if samples:
+            q = np.vstack(samples)
+            pid = np.repeat(np.arange(next_path, next_path + len(samples)), [len(s) for s in samples])
+            next_path += len(samples)
+            cursor = q[-1]
+            _, _, own_face = ori.closest_points(q, tri, own_tree)
+            surface_normal = surface.face_normals[own_face]
+            closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])  # the platform top
+            dist = np.abs(q[:, 2])
+            for tri_k, tree_k in earlier[-settings.window:]:
+                c_k, d_k, _ = ori.closest_points(q, tri_k, tree_k)
+                better = d_k < dist
+                closest[better], dist[better] = c_k[better], d_k[better]
+            t = ori.accumulation_directions(q, closest, surface_normal)
+            t = ori.low_pass(t, pid, settings.max_angle)
+            t = ori.limit_tilt(t, surface_normal, settings.max_tilt)
+            pos, nrm, parent, frac = ori.slerp_subdivide(q, t, pid, settings.max_angle)
+            nxt = np.minimum(parent + 1, len(q) - 1)
+            nrm = ori.limit_tilt(nrm, surface_normal[parent], settings.max_tilt)
+            thick = np.clip(dist, settings.min_thickness * w, settings.max_thickness * w)
+            row["thickness_clamped"] = int(np.sum((dist < settings.min_thickness * w) | (dist > settings.max_thickness * w)))
+            out["positions"].append(pos)
+            out["normals"].append(nrm)
+            out["layer"].append(np.full(len(pos), index, np.int32))
+            out["path"].append(pid[parent].astype(np.int32))
+            out["thickness"].append(thick[parent] + frac * (thick[nxt] - thick[parent]))
+            row["samples"] = len(pos)
+            row["subdivided"] = int(len(pos) - len(q))
+            row["length_mm"] = round(float(sum(np.linalg.norm(np.diff(s, axis=0), axis=1).sum() for s in samples)), 3)
+        if len(tri):
+            earlier.append((tri, own_tree))
+        t2 = perf_counter()
+        seconds["spirals"] += t1 - t0
+        seconds["orientation"] += t2 - t1
+        row["seconds"] = round(t2 - t0, 3)
+        per_layer.append(row)
+    cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("positions", "normals") else 0)) for k, v in out.items()}
+    path = cat["path"].astype(np.int32)
+    extrusion = extrusion_amounts(cat["positions"], path, cat["thickness"], w, settings.filament_diameter) if len(path) else np.zeros(0)
+    return Toolpaths(cat["positions"], cat["normals"], cat["layer"].astype(np.int32), path, extrusion,
+                     cat["thickness"], np.full(len(path), settings.feed), per_layer, seconds)
+
+
+def save_toolpaths(outdir: Path, tp: Toolpaths, settings: ToolpathSettings) -> None:
+    """Write ``toolpaths.npz`` (the stage contract) and the extended ``toolpaths.gcode``."""
+    outdir = Path(outdir)
+    np.savez_compressed(outdir / "toolpaths.npz", positions=tp.positions, normals=tp.normals, layer=tp.layer,
+                        path=tp.path, extrusion=tp.extrusion, thickness=tp.thickness, feed=tp.feed)
+    header = {k: (round(float(np.degrees(v)), 6) if k in ("max_angle", "max_tilt") else v)
+              for k, v in asdict(settings).items()}
+    header = {("max_angle_deg" if k == "max_angle" else "max_tilt_deg" if k == "max_tilt" else k): v
+              for k, v in header.items()}
+    header.update(layers=len(tp.layers), samples=len(tp.positions), pieces=int(len(np.unique(tp.path))))
+    write_gcode6(outdir / "toolpaths.gcode", tp.positions, tp.normals, tp.extrusion, tp.feed, tp.path, tp.layer, header)

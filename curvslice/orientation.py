@@ -1,0 +1,122 @@
+"""Orientation of material accumulation along the tool-paths (thesis §3.5.2).
+
+For a sample ``q`` on layer ``S_i`` the orientation is ``t_q = q - c_q`` with ``c_q`` the closest
+point on the layers printed before (Eq. 3.3; the platform top ``z = 0`` counts as printed), so
+the bead is stacked on the material under it. Samples whose orientation differs from a
+neighbour's by more than 10° are low-pass filtered; where a crest still leaves a larger jump
+the segment is subdivided and the new samples get slerp-interpolated orientations. Finally no
+orientation may point into printed material: the angle to the layer normal (which points
+towards later layers) is kept below ``max_tilt``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+from trimesh.triangles import closest_point as _closest_on_triangles
+
+
+def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | None = None,
+                   candidates: int = 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Closest point on a triangle soup (T,3,3) for each point (Eq. 3.3), its distance and triangle.
+
+    Candidates are the ``candidates`` triangles with the nearest centroids (``tree`` over the
+    centroids may be passed in); the exact point-triangle distance decides among them.
+    """
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    tri = np.asarray(triangles, np.float64).reshape(-1, 3, 3)
+    tree = tree if tree is not None else cKDTree(tri.mean(axis=1))
+    k = min(candidates, len(tri))
+    _, idx = tree.query(pts, k=k)
+    idx = idx.reshape(len(pts), k)
+    cand = _closest_on_triangles(tri[idx.ravel()], np.repeat(pts, k, axis=0)).reshape(len(pts), k, 3)
+    dist = np.linalg.norm(cand - pts[:, None, :], axis=2)
+    best = np.argmin(dist, axis=1)
+    rows = np.arange(len(pts))
+    return cand[rows, best], dist[rows, best], idx[rows, best]
+
+
+def accumulation_directions(points: np.ndarray, closest: np.ndarray, fallback: np.ndarray) -> np.ndarray:
+    """Unit ``t_q = c_q q`` (Eq. 3.3 and below); ``fallback`` where ``q`` touches ``c_q``."""
+    t = np.asarray(points, np.float64) - closest
+    n = np.linalg.norm(t, axis=1, keepdims=True)
+    return np.where(n > 1e-9, t / np.where(n > 1e-9, n, 1.0), fallback)
+
+
+def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+
+
+def _unit(x: np.ndarray) -> np.ndarray:
+    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-300)
+
+
+def low_pass(normals: np.ndarray, path_id: np.ndarray, max_angle: float = np.radians(10.0),
+             iterations: int = 50) -> np.ndarray:
+    """Average ``(t_{i-1} + 2 t_i + t_{i+1}) / 4`` on samples that differ from a neighbour on
+    the same path by more than ``max_angle``, repeatedly, until none is left (§3.5.2)."""
+    t = _unit(np.asarray(normals, np.float64).copy())
+    pid = np.asarray(path_id)
+    same = pid[1:] == pid[:-1]
+    for _ in range(iterations):
+        jump = same & (_angles(t[1:], t[:-1]) > max_angle)
+        if not jump.any():
+            break
+        flag = np.zeros(len(t), bool)
+        flag[:-1] |= jump
+        flag[1:] |= jump
+        prev = np.vstack([t[:1], t[:-1]])
+        nxt = np.vstack([t[1:], t[-1:]])
+        prev[1:][~same] = t[1:][~same]  # no smoothing across a travel
+        nxt[:-1][~same] = t[:-1][~same]
+        t[flag] = _unit(prev[flag] + 2 * t[flag] + nxt[flag])
+    return t
+
+
+def limit_tilt(normals: np.ndarray, surface_normals: np.ndarray, max_tilt: float) -> np.ndarray:
+    """Rotate each orientation towards the layer normal until their angle is ≤ ``max_tilt``, so
+    the nozzle never points into the printed side of the working surface."""
+    t = _unit(np.asarray(normals, np.float64))
+    n = _unit(np.asarray(surface_normals, np.float64))
+    ang = _angles(t, n)
+    bad = ang > max_tilt
+    if bad.any():
+        side = t[bad] - np.einsum("ij,ij->i", t[bad], n[bad])[:, None] * n[bad]
+        norm = np.linalg.norm(side, axis=1, keepdims=True)
+        any_perp = np.cross(n[bad], np.where(np.abs(n[bad][:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
+        side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-300), _unit(any_perp))
+        t[bad] = np.cos(max_tilt) * n[bad] + np.sin(max_tilt) * side
+    return t
+
+
+def slerp(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Spherical linear interpolation between unit vectors (rows), parameter ``u`` in [0, 1]."""
+    omega = _angles(a, b)[:, None]
+    u = np.asarray(u, np.float64).reshape(-1, 1)
+    small = omega < 1e-8
+    s = np.where(small, 1.0, np.sin(omega))
+    wa = np.where(small, 1 - u, np.sin((1 - u) * omega) / s)
+    wb = np.where(small, u, np.sin(u * omega) / s)
+    return _unit(wa * a + wb * b)
+
+
+def slerp_subdivide(positions: np.ndarray, normals: np.ndarray, path_id: np.ndarray,
+                    max_angle: float = np.radians(10.0)) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Subdivide segments whose orientations differ by more than ``max_angle`` (crests, §3.5.2).
+
+    Returns new positions and normals plus, per new sample, the index of the original sample
+    that starts its segment and the fraction along it (to interpolate other per-sample data).
+    """
+    p = np.asarray(positions, np.float64)
+    t = _unit(np.asarray(normals, np.float64))
+    pid = np.asarray(path_id)
+    ang = np.r_[_angles(t[1:], t[:-1]), 0.0]
+    pieces = np.where(np.r_[pid[1:] == pid[:-1], False], np.ceil(ang / max_angle - 1e-9), 1).astype(np.int64)
+    pieces = np.maximum(pieces, 1)
+    parent = np.repeat(np.arange(len(p)), pieces)
+    fraction = np.arange(len(parent)) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+    fraction = fraction / pieces[parent]
+    nxt = np.minimum(parent + 1, len(p) - 1)
+    pos = p[parent] + fraction[:, None] * (p[nxt] - p[parent])
+    nrm = slerp(t[parent], t[nxt], fraction)
+    return pos, nrm, parent, fraction

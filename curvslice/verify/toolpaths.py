@@ -1,0 +1,154 @@
+"""Re-check of the tool-path stage from ``toolpaths.npz``, ``toolpaths.gcode`` and ``layers/``.
+
+Recomputed here without the tool-path code (thesis §3.3.2 "surface covering", §3.5.2):
+coverage (share of each layer's area within half a path width of its path), overlap (share of
+the area within half a width of two passes of the path), orientation continuity (consecutive
+samples of one piece within 10°), orientation validity (unit, on the unprinted side of the
+layer), samples lying on their layer, extrusion sanity and the G-code agreeing with the arrays.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from curvslice.verify import Check
+
+STAGE = "toolpaths"
+COVERAGE_MIN = 0.95
+OVERLAP_MAX = 0.05
+CONTINUITY_MIN = 0.99
+MAX_STEP_ANGLE = np.radians(10.0)
+_HEADER = re.compile(r"^;\s*path_width\s*=\s*([-+0-9.eE]+)")
+_MOVE = re.compile(r"^(G0|G1)\s")
+_NUM = re.compile(r"(nX|nY|nZ|[XYZEF])([-+]?[0-9.]+)")
+
+
+def _gcode_arrays(path: Path) -> tuple[float | None, np.ndarray, np.ndarray, np.ndarray]:
+    """Path width from the header, and positions, normals, E increments of the moves."""
+    width, rows, e_prev = None, [], 0.0
+    state = {"X": 0.0, "Y": 0.0, "Z": 0.0, "nX": 0.0, "nY": 0.0, "nZ": 1.0, "E": 0.0}
+    for line in path.read_text().splitlines():
+        head = _HEADER.match(line)
+        if head:
+            width = float(head.group(1))
+        if not _MOVE.match(line):
+            continue
+        state.update({k: float(v) for k, v in _NUM.findall(line.split(";")[0])})
+        inc = 0.0 if line.startswith("G0") else state["E"] - e_prev
+        e_prev = state["E"]
+        rows.append([state[k] for k in ("X", "Y", "Z", "nX", "nY", "nZ")] + [inc])
+    arr = np.asarray(rows, float).reshape(-1, 7)
+    return width, arr[:, :3], arr[:, 3:6], arr[:, 6]
+
+
+def _densify(positions: np.ndarray, path: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points every ≤ ``spacing`` along each piece, with a key = piece offset + arclength."""
+    seg = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    same = path[1:] == path[:-1]
+    arclen = np.r_[0.0, np.cumsum(np.where(same, seg, 0.0))]
+    key = arclen + np.cumsum(np.r_[0, ~same]) * 1e7
+    n = np.where(same, np.maximum(np.ceil(seg / spacing), 1), 0).astype(int)
+    i = np.repeat(np.arange(len(seg)), n)
+    u = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.maximum(n[i], 1)
+    pts = np.vstack([positions[i] + u[:, None] * (positions[i + 1] - positions[i]), positions])
+    keys = np.r_[key[i] + u * (key[i + 1] - key[i]), key]
+    return pts, keys
+
+
+def layer_cover(mesh: trimesh.Trimesh, positions: np.ndarray, path: np.ndarray, width: float,
+                seed: int = 0, max_samples: int = 20000) -> tuple[float, float]:
+    """(coverage, overlap) of one layer, by area-weighted random samples of the surface."""
+    if mesh.area <= 0:
+        return 1.0, 0.0
+    count = int(min(max(mesh.area / (0.2 * width * width), 500), max_samples))
+    pts, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
+    if len(positions) == 0:
+        return 0.0, 0.0
+    dense, keys = _densify(positions, path, 0.1 * width)
+    pairs = cKDTree(pts).sparse_distance_matrix(cKDTree(dense), 0.5 * width, output_type="coo_matrix")
+    rows = pairs.row
+    covered = np.zeros(count, bool)
+    covered[rows] = True
+    if len(rows) == 0:
+        return 0.0, 0.0
+    order = np.argsort(rows, kind="stable")
+    r, k = rows[order], keys[pairs.col[order]]
+    starts = np.r_[0, np.nonzero(np.diff(r))[0] + 1]
+    spread = np.maximum.reduceat(k, starts) - np.minimum.reduceat(k, starts)
+    return float(covered.mean()), float(np.mean(np.isin(np.arange(count), r[starts][spread > 2.0 * width])))
+
+
+def checks(outdir: Path) -> list[Check] | None:
+    outdir = Path(outdir)
+    npz_path = outdir / "toolpaths.npz"
+    if not npz_path.exists():
+        return None
+    data = np.load(npz_path)
+    pos, nrm, layer, path = data["positions"], data["normals"], data["layer"], data["path"]
+    extrusion = data["extrusion"]
+    results: list[Check] = []
+
+    def add(name: str, passed: bool, value: str, detail: str = "") -> None:
+        results.append(Check(STAGE, name, bool(passed), value, detail))
+
+    gcode_path = outdir / "toolpaths.gcode"
+    width = None
+    if gcode_path.exists():
+        width, g_pos, g_nrm, g_ext = _gcode_arrays(gcode_path)
+        same_len = len(g_pos) == len(pos)
+        err = float(np.abs(g_pos - pos).max()) if same_len and len(pos) else np.inf if not same_len else 0.0
+        add("gcode matches npz", same_len and err <= 1e-3 and np.allclose(g_ext, extrusion, atol=1e-5),
+            f"{len(g_pos)} moves, max |Δp| {err:.1e} mm", "" if same_len else f"npz has {len(pos)} samples")
+    else:
+        add("gcode present", False, "missing", "toolpaths.gcode not written")
+    width = width if width is not None else 1.0
+
+    first = np.r_[True, path[1:] != path[:-1]]
+    seg = np.r_[0.0, np.linalg.norm(np.diff(pos, axis=0), axis=1)]
+    add("extrusion", bool(np.all(extrusion >= 0) and np.all(extrusion[first] == 0) and np.all(extrusion[~first & (seg > 1e-6)] > 0)),
+        f"E total {extrusion.sum():.1f} mm", "E ≥ 0, 0 on travels, > 0 on printed segments")
+
+    norm_len = np.linalg.norm(nrm, axis=1)
+    same = ~first[1:]
+    cosang = np.einsum("ij,ij->i", nrm[1:], nrm[:-1]) / np.maximum(norm_len[1:] * norm_len[:-1], 1e-300)
+    steps = np.arccos(np.clip(cosang, -1, 1))[same]
+    share = float(np.mean(steps <= MAX_STEP_ANGLE + 1e-9)) if len(steps) else 1.0
+    add("orientation continuity", share >= CONTINUITY_MIN, f"{100 * share:.2f}% of steps ≤ 10°",
+        f"max step {np.degrees(steps.max()) if len(steps) else 0:.1f}°")
+
+    layer_files = sorted((outdir / "layers").glob("layer_*.ply"))
+    coverage, overlap, on_surface, facing = [], [], [], []
+    for number, lf in enumerate(layer_files, start=1):
+        mesh = trimesh.load(lf, process=False, force="mesh")
+        mask = layer == number
+        cov, ovl = layer_cover(mesh, pos[mask], path[mask], width, seed=number)
+        coverage.append(cov)
+        overlap.append(ovl)
+        if mask.any() and len(mesh.faces):
+            tree = cKDTree(mesh.triangles_center)
+            dist, face = tree.query(pos[mask])
+            on_surface.append(float(np.max(np.abs(np.einsum("ij,ij->i", pos[mask] - mesh.triangles_center[face], mesh.face_normals[face])))))
+            facing.append(np.einsum("ij,ij->i", nrm[mask], mesh.face_normals[face]))
+    if layer_files:
+        cov = np.asarray(coverage)
+        ovl = np.asarray(overlap)
+        worst = int(np.argmin(cov)) + 1
+        add("coverage", bool(cov.min() >= COVERAGE_MIN), f"min {100 * cov.min():.1f}% (layer {worst}), mean {100 * cov.mean():.1f}%",
+            f"{int(np.sum(cov < COVERAGE_MIN))} of {len(cov)} layers below {100 * COVERAGE_MIN:.0f}%")
+        add("overlap", bool(ovl.max() <= OVERLAP_MAX), f"max {100 * ovl.max():.1f}% (layer {int(np.argmax(ovl)) + 1}), mean {100 * ovl.mean():.1f}%",
+            f"{int(np.sum(ovl > OVERLAP_MAX))} layers above {100 * OVERLAP_MAX:.0f}%")
+    else:
+        add("layers present", False, "no layers/layer_*.ply", "coverage cannot be checked")
+    if facing:
+        dots = np.concatenate(facing)
+        unit = bool(np.all(np.abs(norm_len - 1) < 1e-6))
+        add("orientation validity", unit and bool(np.all(dots > 0)),
+            f"{int(np.sum(dots <= 0))} samples point into printed side", "unit length and t·n_layer > 0")
+        add("samples on layers", max(on_surface) <= 0.25 * width, f"max off-surface {max(on_surface):.3f} mm",
+            "distance along the nearest face normal ≤ a quarter path width")
+    return results
