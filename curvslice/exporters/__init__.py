@@ -9,11 +9,88 @@ small helpers the writers share: argument checks, number formatting and file spl
 
 from __future__ import annotations
 
+import re
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from curvslice.errors import CurvsliceError
+from curvslice.gcode import Event
+
+
+@dataclass
+class RobotPath:
+    """A Cartesian tool path in the robot's (work-object) frame, ready for a program writer.
+
+    Row i is the straight move *to* ``positions[i]``; ``quaternions`` (w, x, y, z, unit) give the
+    tool orientation there; ``speed`` is the TCP speed of the move (mm/s); ``extrusion`` the
+    filament (mm) fed on it, negative for a retraction. ``events`` (dwell, temperatures, fans …)
+    happen before the move ``event.index``.
+    """
+
+    positions: np.ndarray  # (N, 3) mm
+    quaternions: np.ndarray  # (N, 4) w, x, y, z
+    speed: np.ndarray  # (N,) mm/s
+    extrusion: np.ndarray  # (N,) mm filament
+    tool: np.ndarray  # (N,) int extruder index
+    layer: np.ndarray  # (N,) int layer number (1-based)
+    line: np.ndarray  # (N,) int source line (0 = none)
+    home: np.ndarray  # (N,) bool: a homing move (joint move allowed)
+    events: list[Event] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    @property
+    def extruding(self) -> np.ndarray:
+        """(N,) bool: material is deposited on the move."""
+        return self.extrusion > 0
+
+    @property
+    def retracted(self) -> np.ndarray:
+        """(N,) bool: filament is retracted after the move (a negative E until the next positive E)."""
+        sign = np.sign(self.extrusion)
+        idx = np.maximum.accumulate(np.where(sign != 0, np.arange(len(sign)), -1))
+        return np.where(idx >= 0, sign[np.maximum(idx, 0)] < 0, False)
+
+    def events_at(self) -> dict[int, list[Event]]:
+        """Events grouped by the move index they precede (index N = after the last move)."""
+        grouped: dict[int, list[Event]] = {}
+        for ev in self.events:
+            grouped.setdefault(ev.index, []).append(ev)
+        return grouped
+
+
+_EVENT_TEXT = re.compile(r"^event\s+(\S+)((?:\s+[A-Za-z]+=[-+0-9.eE]+)*)\s*(?:\|\s?(.*))?$")
+
+
+def event_text(event: Event) -> str:
+    """One-line form of an event for a program comment: ``event M104 S=215 | free text``."""
+    params = "".join(f" {k}={v!r}" for k, v in event.params.items())
+    return f"event {event.code}{params}" + (f" | {event.text}" if event.text else "")
+
+
+def parse_event_text(text: str, index: int) -> Event | None:
+    """Inverse of :func:`event_text` (``None`` when ``text`` is not an event comment)."""
+    m = _EVENT_TEXT.match(text.strip())
+    if not m:
+        return None
+    params = {k: float(v) for k, v in (w.split("=") for w in m[2].split())}
+    return Event(index, 0, m[1], params, m[3] or "")
+
+
+def output_switches(*states: np.ndarray) -> np.ndarray:
+    """(N,) bool: the move *after* row i needs some output in ``states`` to change.
+
+    A writer ends such a move with a full stop so the switch happens at the point.
+    """
+    n = len(states[0])
+    switch = np.zeros(n, bool)
+    for s in states:
+        s = np.asarray(s)
+        switch[:-1] |= s[1:] != s[:-1]
+    return switch
 
 
 def fixed(value: float, digits: int) -> str:

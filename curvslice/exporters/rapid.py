@@ -16,16 +16,34 @@ from pathlib import Path
 
 import numpy as np
 
+from curvslice.cell import RapidIO
 from curvslice.errors import CurvsliceError
-from curvslice.exporters import chunks, clean_outdir, joint_program, relative_times
+from curvslice.exporters import (
+    RobotPath,
+    chunks,
+    clean_outdir,
+    event_text,
+    fixed,
+    joint_program,
+    output_switches,
+    parse_event_text,
+    relative_times,
+)
+from curvslice.gcode import Event
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,19}")
 _NUM = r"[-+0-9.eE]+"
 _JOINTTARGET = re.compile(rf"CONST\s+jointtarget\s+(\w+)\s*:=\s*\[\[([^\]]*)\]")
 _MOVEABSJ = re.compile(rf"^\s*MoveAbsJ\s+(\w+)\s*,\s*\w+(?:\\T:=({_NUM}))?")
 _SETDO = re.compile(r"^\s*SetDO\s+(\w+)\s*,\s*([01])\s*;")
+_SETDO_ANY = re.compile(r"SetDO\s+(\w+)\s*,\s*([01])\s*;")
 _COMMENT_NUMBER = re.compile(rf"^\s*!\s*(t_start|segment)\s+({_NUM})")
 _LOAD = re.compile(r'Load\s+\\Dynamic\s*,\s*"[^"]*?([^"/:]+)\.mod"', re.IGNORECASE)
+_ROBTARGET = re.compile(r"CONST\s+robtarget\s+(\w+)\s*:=\s*\[\[([^\]]*)\]\s*,\s*\[([^\]]*)\]")
+_SPEEDDATA = re.compile(rf"CONST\s+speeddata\s+(\w+)\s*:=\s*\[({_NUM})")
+_MOVE = re.compile(rf"^\s*(MoveL|MoveJ)\s+(\w+)\s*,\s*(\w+)\s*,[^;]*;\s*(?:!\s*E({_NUM}))?")
+_WAITTIME = re.compile(rf"^\s*WaitTime\s+(?:\\InPos\s*,\s*)?({_NUM})")
+_COMMENT = re.compile(r"^\s*!\s?(.*)$")
 _NINES = "[9E9,9E9,9E9,9E9,9E9,9E9]"
 
 
@@ -38,9 +56,12 @@ def check_identifier(name: str) -> str:
     return name
 
 
-def write_main_module(outdir: Path, name: str, parts: int, load_dir: str, reset: list[str]) -> Path:
-    """The main module: reset outputs, then Load \\Dynamic, call and UnLoad each part in order."""
-    lines = [f"MODULE {name}_main", "  PROC main()", "    ConfJ \\Off;", "    ConfL \\Off;"]
+def write_main_module(
+    outdir: Path, name: str, parts: int, load_dir: str, reset: list[str], declarations: Sequence[str] = ()
+) -> Path:
+    """The main module: global data, reset outputs, then Load \\Dynamic, call and UnLoad each part."""
+    lines = [f"MODULE {name}_main", *(f"  {d}" for d in declarations)]
+    lines += ["  PROC main()", "    ConfJ \\Off;", "    ConfL \\Off;"]
     lines += [f"    {r}" for r in reset]
     for k in range(1, parts + 1):
         lines += [
@@ -170,4 +191,150 @@ def read_rapid_joints(paths: Sequence[Path]) -> dict[str, np.ndarray]:
         "t": np.asarray(t, dtype=np.float64),
         "segment": np.asarray(seg, dtype=np.int64),
         "extruding": np.asarray(ext, dtype=bool),
+    }
+
+
+def speed_words(robot: RobotPath, io: RapidIO) -> np.ndarray:
+    """(N,) int: the speed shown on ``io.speed_outputs`` during each move (seed 004 §2.3.2).
+
+    The word is the TCP speed in units of ``io.speed_unit`` mm/s while extruding, else 0. A
+    speed that does not fit in the outputs is an error naming its G-code line (seed 004's
+    converter silently dropped the 8th bit).
+    """
+    word = np.where(robot.extruding, np.rint(robot.speed / io.speed_unit), 0).astype(np.int64)
+    limit = (1 << len(io.speed_outputs)) - 1
+    over = word > limit
+    if io.speed_outputs and over.any():
+        i = int(np.argmax(over))
+        raise CurvsliceError(
+            f"line {robot.line[i]}: {robot.speed[i]:g} mm/s is {word[i]} speed units of {io.speed_unit:g} mm/s, "
+            f"more than {len(io.speed_outputs)} speed outputs can show (max {limit}); "
+            f"add outputs to rapid.speed_outputs or raise rapid.speed_unit"
+        )
+    return word
+
+
+def _output_states(robot: RobotPath, io: RapidIO) -> list[tuple[list[str], np.ndarray]]:
+    """(signal names, per-row value) of every output the program drives; bits MSB first."""
+    states = []
+    if io.speed_outputs:
+        states.append((list(io.speed_outputs), speed_words(robot, io)))
+    if io.retract_output:
+        states.append(([io.retract_output], robot.retracted.astype(np.int64)))
+    if io.extruder_output:
+        states.append(([io.extruder_output], robot.extruding.astype(np.int64)))
+    return states
+
+
+def _set_outputs(names: list[str], value: int) -> str:
+    bits = len(names)
+    return " ".join(f"SetDO {n}, {(value >> (bits - 1 - b)) & 1};" for b, n in enumerate(names))
+
+
+def write_rapid(outdir: Path, robot: RobotPath, io: RapidIO, *, name: str = "curvslice") -> list[Path]:
+    """A Cartesian RAPID program: ``name_main.mod`` + ``name_mod1.mod …`` (≤ ``io.max_targets``
+    robtargets each). Returns ``[main, mod1, …]``.
+
+    Each row is ``MoveL`` (``MoveJ`` for G28 homing) to a robtarget with the normalised tool
+    quaternion and ``io.robconf``, at a speeddata declared once per distinct speed in the main
+    module, through zone ``io.zone``; ``fine`` only where an output switches before the next
+    move, before a dwell and at module ends. Outputs are written before the move they apply
+    to: the speed word, the retraction signal, the extruder signal (as the cell defines them).
+    The filament of each move is kept as a trailing ``! E…`` comment.
+    """
+    check_identifier(name)
+    outdir = Path(outdir)
+    n = len(robot)
+    states = _output_states(robot, io)
+    speeds = np.round(robot.speed, 3)
+    table = {float(v): k for k, v in enumerate(dict.fromkeys(speeds.tolist()), start=1)}
+    quats = robot.quaternions / np.linalg.norm(robot.quaternions, axis=1, keepdims=True)
+    events = robot.events_at()
+    stop = output_switches(*(v for _, v in states))
+    stop[:-1] |= [any(ev.code == "G4" for ev in events.get(i + 1, [])) for i in range(n - 1)]
+    conf = ",".join(str(int(c)) for c in io.robconf)
+    clean_outdir(outdir, f"{name}_mod*.mod")
+
+    def event_lines(i: int) -> list[str]:
+        return [f"    WaitTime \\InPos, {fixed(ev.params['seconds'], 3)};" if ev.code == "G4" else f"    ! {event_text(ev)}"
+                for ev in events.get(i, [])]
+
+    parts = chunks(n, io.max_targets)
+    paths = []
+    for k, rows in enumerate(parts, start=1):
+        stop[rows.stop - 1] = True
+        lines = [f"MODULE {name}_mod{k}", f"  ! curvslice path part {k} of {len(parts)}, rows {rows.start}..{rows.stop - 1}"]
+        for i in rows:
+            xyz = ",".join(fixed(v, 3) for v in robot.positions[i])
+            q = ",".join(f"{v:.7f}" for v in quats[i])
+            lines.append(f"  LOCAL CONST robtarget p{i} := [[{xyz}],[{q}],[{conf}],{_NINES}];")
+        lines.append(f"  PROC {name}_part{k}()")
+        for i in rows:
+            lines += event_lines(i)
+            for names, value in states:
+                if i == rows.start or value[i] != value[i - 1]:
+                    lines.append(f"    {_set_outputs(names, int(value[i]))}")
+            move = "MoveJ" if robot.home[i] else "MoveL"
+            zone = "fine" if stop[i] else io.zone
+            lines.append(
+                f"    {move} p{i}, sd{table[float(speeds[i])]}, {zone}, {io.tool}\\WObj:={io.wobj}; "
+                f"! E{fixed(robot.extrusion[i], 6)}"
+            )
+        if k == len(parts):
+            lines += event_lines(n)
+        lines += ["  ENDPROC", "ENDMODULE"]
+        path = outdir / f"{name}_mod{k}.mod"
+        path.write_text("\n".join(lines) + "\n")
+        paths.append(path)
+    declarations = [f"CONST speeddata sd{k} := [{fixed(v, 3)},500,5000,1000];" for v, k in table.items()]
+    reset = [_set_outputs(names, 0) for names, _ in states]
+    return [write_main_module(outdir, name, len(parts), io.load_dir, reset, declarations), *paths]
+
+
+def read_rapid(paths: Sequence[Path], io: RapidIO = RapidIO()) -> dict[str, object]:
+    """Read a program of :func:`write_rapid` (main module included, for the speeds).
+
+    Returns ``positions`` (N,3), ``quaternions`` (N,4), ``speed`` (N,), ``extrusion`` (N,),
+    ``home`` (N,), ``events`` and the output values during each move: ``speed_word``,
+    ``retracted``, ``extruding`` (from the cell's output names; absent outputs read as 0).
+    """
+    paths = [Path(p) for p in paths]
+    speeds: dict[str, float] = {}
+    for p in paths:
+        speeds.update({m[1]: float(m[2]) for m in _SPEEDDATA.finditer(p.read_text())})
+    bit_of = {n: len(io.speed_outputs) - 1 - b for b, n in enumerate(io.speed_outputs)}
+    signals: dict[str, int] = {}
+    pos, quat, speed, extrusion, home, words, ret, ext, events = [], [], [], [], [], [], [], [], []
+    for path in ordered_modules(paths):
+        text = path.read_text()
+        targets = {m[1]: (m[2], m[3]) for m in _ROBTARGET.finditer(text)}
+        for line in text.splitlines():
+            if m := _MOVE.match(line):
+                xyz, q = targets[m[2]]
+                pos.append([float(v) for v in xyz.split(",")])
+                quat.append([float(v) for v in q.split(",")])
+                speed.append(speeds.get(m[3], np.nan))
+                extrusion.append(float(m[4]) if m[4] else 0.0)
+                home.append(m[1] == "MoveJ")
+                words.append(sum(signals.get(n, 0) << b for n, b in bit_of.items()))
+                ret.append(bool(signals.get(io.retract_output, 0)) if io.retract_output else False)
+                ext.append(bool(signals.get(io.extruder_output, 0)) if io.extruder_output else words[-1] > 0)
+            elif m := _WAITTIME.match(line):
+                events.append(Event(len(pos), 0, "G4", {"seconds": float(m[1])}, ""))
+            elif m := _COMMENT.match(line):
+                if ev := parse_event_text(m[1], len(pos)):
+                    events.append(ev)
+            else:
+                for sig, value in _SETDO_ANY.findall(line):
+                    signals[sig] = int(value)
+    return {
+        "positions": np.asarray(pos, float).reshape(-1, 3),
+        "quaternions": np.asarray(quat, float).reshape(-1, 4),
+        "speed": np.asarray(speed, float),
+        "extrusion": np.asarray(extrusion, float),
+        "home": np.asarray(home, bool),
+        "speed_word": np.asarray(words, np.int64),
+        "retracted": np.asarray(ret, bool),
+        "extruding": np.asarray(ext, bool),
+        "events": events,
     }

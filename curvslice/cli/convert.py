@@ -1,0 +1,85 @@
+"""``curvslice convert IN.gcode --to vplus|rapid|urscript|gcode6 --cell CELL``: slicer G-code to robot programs.
+
+Reads planar slicer G-code strictly (:mod:`curvslice.gcode`), maps it onto the cell
+(:mod:`curvslice.cell`: offset, workspace, nozzle orientation) and writes each requested target
+through the exporters. Seeds 003 (V+ + Arduino sketch) and 004 (RAPID) describe the targets.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+from curvslice.cell import gcode6_samples, load_cell, robot_path
+from curvslice.exporters.arduino import write_accelstepper_sketch
+from curvslice.exporters.gcode6 import write_gcode6
+from curvslice.exporters.rapid import write_rapid
+from curvslice.exporters.urscript import write_urscript
+from curvslice.exporters.vplus import signal_count, speed_inventory, write_vplus
+from curvslice.gcode import read_gcode
+
+TARGETS = ("vplus", "rapid", "urscript", "gcode6")
+
+
+def add_parser(subparsers) -> None:
+    p = subparsers.add_parser(
+        "convert",
+        help="convert slicer G-code to V+, RAPID, URScript or extended G-code for a robot cell",
+        description=__doc__.split("\n\n")[1],
+    )
+    p.add_argument("gcode", type=Path, help="planar G-code (Slic3r, PrusaSlicer, Cura) or extended G-code")
+    p.add_argument("--to", action="append", choices=TARGETS, required=True, help="target (repeat for several)")
+    p.add_argument("--cell", default="generic", help="cell preset name or JSON cell file (default: generic)")
+    p.add_argument("--out", type=Path, default=Path("."), help="output folder (default: current folder)")
+    p.add_argument("--name", default=None, help="program name (default: the G-code file's stem)")
+    p.add_argument("--offset", type=float, nargs=3, metavar=("X", "Y", "Z"), help="position offset, mm (overrides the cell)")
+    p.add_argument("--fixed-orientation", action="store_true", help="ignore nX nY nZ; keep the cell's nozzle orientation")
+    p.add_argument("--warn-workspace", action="store_true", help="report moves outside the workspace instead of refusing")
+    p.add_argument("--lenient", action="store_true", help="warn about and skip unknown G-code instead of failing")
+    p.set_defaults(run=run)
+
+
+def _identifier(stem: str) -> str:
+    name = "".join(c if c.isalnum() else "_" for c in stem)
+    return name if name[:1].isalpha() else f"p_{name}"
+
+
+def run(args: argparse.Namespace) -> int:
+    cell = load_cell(args.cell)
+    changes = {}
+    if args.offset is not None:
+        changes["offset"] = tuple(args.offset)
+    if args.fixed_orientation:
+        changes["use_normals"] = False
+    if args.warn_workspace:
+        changes["workspace_policy"] = "warn"
+    cell = dataclasses.replace(cell, **changes)
+    program = read_gcode(args.gcode, lenient=args.lenient, home=cell.home)
+    robot, warnings = robot_path(program, cell)
+    for message in program.warnings + warnings:
+        print(f"curvslice convert: warning: {message}", file=sys.stderr)
+    name = args.name or _identifier(args.gcode.stem)[:20]
+    args.out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    for target in dict.fromkeys(args.to):
+        if target == "vplus":
+            patterns = speed_inventory(robot)
+            write_vplus(args.out / f"{name}.v2", robot, patterns, cell.vplus, program=name[:15])
+            sketch = args.out / name / f"{name}.ino"
+            sketch.parent.mkdir(exist_ok=True)
+            write_accelstepper_sketch(sketch, patterns, signal_count(len(patterns), cell.vplus), cell.syringe)
+            written += [args.out / f"{name}.v2", sketch]
+        elif target == "rapid":
+            written += write_rapid(args.out, robot, cell.rapid, name=name)
+        elif target == "urscript":
+            written += write_urscript(args.out, robot, cell.urscript, name=name)
+        else:
+            samples = gcode6_samples(robot, cell.orientation)
+            header = {"source": args.gcode.name, "cell": cell.name, "offset_mm": list(cell.offset)}
+            write_gcode6(args.out / f"{name}.gcode", header=header, path_id=samples.pop("path_id"), **samples)
+            written.append(args.out / f"{name}.gcode")
+    print(f"converted {len(robot)} moves from {args.gcode} for cell {cell.name!r}: "
+          + ", ".join(str(p) for p in written))
+    return 0
