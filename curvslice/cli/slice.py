@@ -1,0 +1,146 @@
+"""``curvslice slice MODEL``: run the pipeline stages in order and write one output folder.
+
+The stages are plain functions ``stage(ctx) -> None`` listed in :data:`STAGES`; each calls the
+library, writes its artefacts into ``ctx.out`` (a temporary folder made final only on success),
+keeps what later stages need in ``ctx.data`` and its figures in ``ctx.report``. No algorithm here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from curvslice import __version__
+from curvslice.convex_front import GROW_EPS, PEEL_EPS
+from curvslice.errors import CurvsliceError
+from curvslice.growing_field import METHODS, growing_field
+from curvslice.outdir import atomic_folder
+from curvslice.peeling_field import peeling_field
+from curvslice.platform import DEFAULT_MARGIN, DEFAULT_THICKNESS, disc_platform, load_platform
+from curvslice.solid import UP_AXES, load_solid
+from curvslice.voxelize import voxelize
+
+
+@dataclass
+class Context:
+    """What the stages share: parsed arguments, the folder being written, the report and data."""
+
+    args: argparse.Namespace
+    out: Path
+    report: dict = field(default_factory=dict)
+    data: dict = field(default_factory=dict)
+
+    def bar(self, desc: str, total: int, unit: str = "voxel") -> tqdm:
+        return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, leave=False,
+                    disable=self.args.quiet, dynamic_ncols=True)
+
+    @contextmanager
+    def timed(self, key: str) -> Iterator[None]:
+        start = time.perf_counter()
+        yield
+        self.report.setdefault("timings_s", {})[key] = round(time.perf_counter() - start, 3)
+
+
+def stage_field(ctx: Context) -> None:
+    """Solid → conservative voxels → inverse peeling field → growing field (§3.4.1-3.4.4)."""
+    a = ctx.args
+    with ctx.timed("load"):
+        solid, load = load_solid(a.model, up=a.up, size=a.size, scale=a.scale)
+    platform = load_platform(a.platform) if a.platform else disc_platform(
+        solid, margin=a.platform_margin, thickness=a.platform_thickness)
+    with ctx.timed("voxelize"):
+        grid = voxelize(solid, a.voxel, memory_limit=int(a.memory_limit * 2**30))
+    n = int(grid.occupied.sum())
+    peel = np.zeros(grid.shape, np.int32)
+    if a.method == "pg-sp-gcfa":
+        with ctx.timed("peeling"), ctx.bar("peeling field", n) as bar:
+            peel = peeling_field(grid, platform.vertices, eps=a.peel_eps, progress=bar)
+    with ctx.timed("growing"), ctx.bar(f"growing field ({a.method})", n) as bar:
+        growing, stats = growing_field(grid, platform.vertices, a.method, peeling=peel,
+                                       delta_f=a.delta_f, eps=a.eps, progress=bar)
+    solid.export(ctx.out / "solid.stl")
+    np.savez_compressed(
+        ctx.out / "field.npz", occupied=grid.occupied, peeling=peel, growing=growing,
+        origin=grid.origin, voxel_size=np.float64(grid.voxel_size), method=np.str_(a.method),
+        platform_vertices=np.asarray(platform.vertices, float), eps=np.float64(a.eps),
+    )
+    ctx.data.update(solid=solid, platform=platform, grid=grid, peeling=peel, growing=growing)
+    ctx.report["load"] = asdict(load)
+    ctx.report["field"] = {
+        "grid_shape": list(grid.shape), "voxels": n, "layers": stats.layers, "missed": stats.missed,
+        "max_peeling": int(peel.max()), "shadow_tests": stats.shadow_tests,
+        "shadow_fallbacks": stats.shadow_fallbacks, "held_back": stats.held_back,
+        "threshold_steps": stats.threshold_steps, "layer_sizes": stats.layer_sizes,
+        "platform_radius_mm": round(float(np.linalg.norm(platform.vertices[:, :2], axis=1).max()), 3),
+    }
+    if not a.quiet:
+        print(f"field: {n} voxels, {stats.layers} layers, {stats.missed} missed "
+              f"({ctx.report['timings_s'].get('growing', 0):.1f} s growing)")
+
+
+#: The pipeline, in order: (name, stage function).
+STAGES: list[tuple[str, Callable[[Context], None]]] = [
+    ("field", stage_field),
+]
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("slice", help="slice a solid into curved, support-free layers (and beyond)",
+                       description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    p.add_argument("model", help="mesh file (STL, OBJ, PLY, OFF), millimetres")
+    p.add_argument("--out", help="output folder (default: MODELNAME_slice in the current folder)")
+    p.add_argument("--force", action="store_true", help="replace an existing output folder")
+    p.add_argument("--stages", default=STAGES[-1][0], choices=[s for s, _ in STAGES],
+                   help="run the pipeline up to and including this stage")
+    g = p.add_argument_group("model placement")
+    g.add_argument("--up", default="z", choices=sorted(UP_AXES), help="model axis that points up")
+    g.add_argument("--size", type=float, help="scale uniformly so the longest extent is SIZE mm")
+    g.add_argument("--scale", type=float, default=1.0, help="uniform scale factor (ignored with --size)")
+    g = p.add_argument_group("platform T")
+    g.add_argument("--platform", help="platform mesh in the model frame (top at z = 0); default: a disc slab")
+    g.add_argument("--platform-margin", type=float, default=DEFAULT_MARGIN, help="disc radius beyond the footprint, mm")
+    g.add_argument("--platform-thickness", type=float, default=DEFAULT_THICKNESS, help="disc thickness, mm")
+    g = p.add_argument_group("volume decomposition (§3.4)")
+    g.add_argument("--voxel", type=float, default=1.0, help="voxel width w, mm")
+    g.add_argument("--method", default="pg-sp-gcfa", choices=METHODS, help="growing-field method")
+    g.add_argument("--delta-f", type=int, default=3, help="Δf, peeling-field threshold step (Alg. 5)")
+    g.add_argument("--eps", type=float, default=GROW_EPS, help="ε of the inside test, in voxel widths")
+    g.add_argument("--peel-eps", type=float, default=PEEL_EPS, help="ε of the peeling shells, in voxel widths")
+    g.add_argument("--memory-limit", type=float, default=8.0, help="refuse grids needing more than this, GiB")
+    p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
+    p.set_defaults(run=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    model = Path(args.model)
+    out = Path(args.out) if args.out else Path.cwd() / f"{model.stem}_slice"
+    last = [s for s, _ in STAGES].index(args.stages)
+    with atomic_folder(out, force=args.force, protect=(model,)) as tmp:
+        ctx = Context(args=args, out=tmp)
+        ctx.report.update(curvslice=__version__, model=str(model.resolve()), stages=[],
+                          parameters={k: v for k, v in vars(args).items() if k != "run"})
+        start = time.perf_counter()
+        for name, stage in STAGES[:last + 1]:
+            stage(ctx)
+            ctx.report["stages"].append(name)
+        ctx.report.setdefault("timings_s", {})["total"] = round(time.perf_counter() - start, 3)
+        (tmp / "report.json").write_text(json.dumps(ctx.report, indent=2, default=_jsonable))
+    if not args.quiet:
+        print(f"wrote {out}")
+    return 0
+
+
+def _jsonable(obj: object) -> object:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, (np.ndarray, Path, tuple)):
+        return obj.tolist() if isinstance(obj, np.ndarray) else str(obj)
+    raise CurvsliceError(f"report value of type {type(obj).__name__} is not JSON-serializable")
