@@ -25,8 +25,8 @@ from curvslice.workcell import Body, Workcell
 class _Shape:
     name: str
     obj: fcl.CollisionObject
-    center: np.ndarray  # bounding-sphere centre in the body frame
-    radius: float
+    center: np.ndarray  # centre of the body-frame bounding box
+    half: np.ndarray  # half extents of the body-frame bounding box
 
 
 def _bvh(mesh: trimesh.Trimesh) -> fcl.BVHModel:
@@ -39,19 +39,17 @@ def _bvh(mesh: trimesh.Trimesh) -> fcl.BVHModel:
 
 def _mesh_shape(name: str, mesh: trimesh.Trimesh) -> _Shape:
     lo, hi = mesh.bounds
-    center = (lo + hi) / 2
-    radius = float(np.linalg.norm(mesh.vertices - center, axis=1).max())
-    return _Shape(name, fcl.CollisionObject(_bvh(mesh), fcl.Transform()), center, radius)
+    return _Shape(name, fcl.CollisionObject(_bvh(mesh), fcl.Transform()), (lo + hi) / 2, (hi - lo) / 2)
 
 
 def _body_shape(body: Body) -> _Shape:
     if body.kind == "box":
         geom = fcl.Box(*body.dims)
-        radius = float(np.linalg.norm(body.dims) / 2)
+        half = np.asarray(body.dims, float) / 2
     else:
         geom = fcl.Cylinder(*body.dims)
-        radius = float(np.hypot(body.dims[0], body.dims[1] / 2))
-    return _Shape(body.name, fcl.CollisionObject(geom, fcl.Transform()), np.zeros(3), radius)
+        half = np.array([body.dims[0], body.dims[0], body.dims[1] / 2])
+    return _Shape(body.name, fcl.CollisionObject(geom, fcl.Transform()), np.zeros(3), half)
 
 
 def _set(obj: fcl.CollisionObject, T: np.ndarray) -> None:
@@ -111,7 +109,8 @@ class CollisionScene:
             pairs += [(L + c, a) for a in range(L) if a != self._flange_link]
         self.pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
         self.shapes = self.links + self.carried + self.static
-        self.radii = np.array([s.radius for s in self.shapes])
+        self.centers = np.array([s.center for s in self.shapes])
+        self.halves = np.array([s.half for s in self.shapes])
 
     def _poses(self, q: np.ndarray) -> np.ndarray:
         """World poses (n, bodies, 4, 4) of links, carried bodies and static bodies."""
@@ -127,10 +126,12 @@ class CollisionScene:
         if len(q) == 0 or len(self.pairs) == 0:
             return np.zeros(len(q), bool)
         poses = self._poses(q)
-        local = np.array([s.center for s in self.shapes])
-        centers = np.einsum("nbij,bj->nbi", poses[..., :3, :3], local) + poses[..., :3, 3]
         a, b = self.pairs[:, 0], self.pairs[:, 1]
-        near = np.linalg.norm(centers[:, a] - centers[:, b], axis=2) <= self.radii[a] + self.radii[b]
+        # world-aligned boxes around every body: pairs whose boxes are disjoint cannot touch
+        R = poses[..., :3, :3]
+        centre = (R @ self.centers[..., None])[..., 0] + poses[..., :3, 3]
+        reach = (np.abs(R) @ self.halves[..., None])[..., 0]
+        near = (np.abs(centre[:, a] - centre[:, b]) <= reach[:, a] + reach[:, b]).all(axis=-1)
         hit = np.zeros(len(q), bool)
         request = fcl.CollisionRequest()
         n_static = len(self.static)

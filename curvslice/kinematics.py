@@ -237,18 +237,27 @@ def fk_reference(robot: Robot, q: np.ndarray) -> np.ndarray:
     return out
 
 
+def joint_placements(robot: Robot, q: np.ndarray) -> np.ndarray:
+    """World poses (n, 7, 4, 4) in mm of the base (index 0) and the six joint frames of the
+    pinocchio model, vectorized over configurations (each joint turns about its own x, y or z)."""
+    q = np.atleast_2d(np.asarray(q, float))
+    model = robot.model
+    out = np.empty((len(q), 7, 4, 4))
+    out[:, 0] = np.eye(4)
+    for j in range(1, 7):
+        axis = "XYZ".index(model.joints[j].shortname()[-1])
+        turn = np.zeros((len(q), 4, 4))
+        turn[:, :3, :3] = _rot(axis, q[:, j - 1])
+        turn[:, 3, 3] = 1.0
+        out[:, j] = out[:, model.parents[j]] @ _se3(model.jointPlacements[j]) @ turn
+    return out
+
+
 def link_placements(robot: Robot, q: np.ndarray) -> np.ndarray:
     """Poses (n, L, 4, 4) in mm of every collision body of ``robot.links`` at configurations q."""
-    q = np.atleast_2d(np.asarray(q, float))
-    data = robot.model.createData()
+    frames = joint_placements(robot, q)
     local = np.stack([s.placement for s in robot.links])
-    joints = [s.joint for s in robot.links]
-    out = np.empty((len(q), len(joints), 4, 4))
-    for i, row in enumerate(q):
-        pin.forwardKinematics(robot.model, data, row)
-        for k, j in enumerate(joints):
-            out[i, k] = _se3(data.oMi[j]) @ local[k]
-    return out
+    return frames[:, [s.joint for s in robot.links]] @ local
 
 
 def _ur_dh(robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -1,0 +1,185 @@
+"""Ladder graph and rung-by-rung multi-source shortest path (§3.5.3, §4.3.1) against scipy's
+Dijkstra, the lazy collision filter against an up-front one, and a planned dome spiral re-checked
+by pinocchio FK in the UR5 workcell."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from curvslice.collision import CollisionScene
+from curvslice.kinematics import fk, fk_reference, load_robot
+from curvslice.motion import (
+    circular_joints,
+    edge_weights,
+    plan_motion,
+    reference_shortest_path,
+    shortest_path,
+    step_times,
+    unwind,
+)
+from curvslice.workcell import load_workcell, waypoints_from_flange
+
+
+def _random_ladder(rng, m_max=30, k_max=8):
+    m = int(rng.integers(2, m_max))
+    K = int(rng.integers(1, k_max))
+    q = rng.uniform(-np.pi, np.pi, (m, K, 6))
+    valid = rng.random((m, K)) < 0.7
+    valid[rng.random(m) < 0.1] = False  # whole rungs without a feasible pose
+    dt = rng.uniform(0.5, 3.0, m - 1)  # with ξ = 1 many transitions are too fast: disconnections
+    circ = rng.random(6) < 0.5
+    return q, valid, dt, circ
+
+
+def test_edge_weights_follow_eq_3_4_and_4_4_4_5():
+    rng = np.random.default_rng(0)
+    qa, qb = rng.uniform(-np.pi, np.pi, (5, 6)), rng.uniform(-np.pi, np.pi, (4, 6))
+    circ = np.array([True, False, True, True, False, True])
+    W = rng.uniform(0.5, 2, 6)
+    for cost in ("l1", "quadratic"):
+        got = edge_weights(qa, qb, 2.0, 1.0, circ, cost, W)
+        for i in range(5):
+            for j in range(4):
+                d = np.abs(qb[j] - qa[i])
+                d[circ] = np.minimum(d[circ], 2 * np.pi - d[circ])  # circular distance (winding)
+                want = (W * d).sum() if cost == "l1" else (W * d * d).sum()
+                if d.max() / 2.0 > 1.0:
+                    assert got[i, j] == np.inf
+                else:
+                    assert got[i, j] == pytest.approx(want, rel=1e-12)
+
+
+def test_dag_shortest_path_equals_scipy_dijkstra():
+    rng = np.random.default_rng(1)
+    splits = empty = 0
+    for trial in range(300):
+        q, valid, dt, circ = _random_ladder(rng)
+        cost = "l1" if trial % 2 else "quadratic"
+        got, _, _ = shortest_path(q, valid, dt, 1.0, circ, cost)
+        ref = reference_shortest_path(q, valid, dt, 1.0, circ, cost)
+        assert got.cost == pytest.approx(ref.cost, rel=1e-12, abs=1e-12)
+        np.testing.assert_array_equal(got.node, ref.node)
+        np.testing.assert_array_equal(got.segment, ref.segment)
+        # the chosen path is feasible: every consecutive pair inside a segment is a graph edge
+        for i in range(len(q) - 1):
+            if got.segment[i] >= 0 and got.segment[i] == got.segment[i + 1]:
+                w = edge_weights(q[i, [got.node[i]]], q[i + 1, [got.node[i + 1]]], dt[i], 1.0, circ, cost)
+                assert np.isfinite(w).all()
+        splits += int(got.segment.max() > 0)
+        empty += int((got.node < 0).any())
+    assert splits > 50 and empty > 50  # the randomized cases really exercise disconnections
+
+
+def test_lazy_node_filter_equals_filtering_first():
+    rng = np.random.default_rng(2)
+    for _ in range(100):
+        q, valid, dt, circ = _random_ladder(rng)
+        blocked = rng.random(valid.shape) < 0.3
+        asked = []
+
+        def node_ok(rungs, nodes):
+            asked.append(len(rungs))
+            return ~blocked[rungs, nodes]
+
+        lazy, _, count = shortest_path(q, valid, dt, 1.0, circ, node_ok=node_ok)
+        eager = reference_shortest_path(q, valid & ~blocked, dt, 1.0, circ)
+        np.testing.assert_array_equal(lazy.node, eager.node)
+        np.testing.assert_array_equal(lazy.segment, eager.segment)
+        assert lazy.cost == pytest.approx(eager.cost, rel=1e-12, abs=1e-12)
+        assert count == sum(asked)
+
+
+def test_unwind_keeps_joints_in_range_and_splits_beyond_it():
+    # joint 6 turns 5 revolutions in small steps; limits ±2π (4π of range): at least one split
+    m = 400
+    angle = np.linspace(0, 10 * np.pi, m)
+    q = np.zeros((m, 6))
+    q[:, 5] = (angle + np.pi) % (2 * np.pi) - np.pi
+    lower, upper = np.full(6, -2 * np.pi), np.full(6, 2 * np.pi)
+    lower[2], upper[2] = -np.pi, np.pi  # a joint without a full extra turn: never wrapped
+    out, splits = unwind(q, np.zeros(m, int), lower, upper)
+    assert len(splits) >= 2
+    assert (out >= lower - 1e-9).all() and (out <= upper + 1e-9).all()
+    cuts = set(splits)
+    step = np.diff(out[:, 5])
+    for i in range(m - 1):
+        if i + 1 not in cuts:  # inside a piece the joint moves by the short way, no jump
+            assert abs(step[i]) < 0.1
+    # same angles modulo 2π
+    assert np.allclose(np.cos(out[:, 5]), np.cos(angle)) and np.allclose(np.sin(out[:, 5]), np.sin(angle))
+
+
+def _dome_spiral(m, turns=3, tilt_deg=60.0, radius=40.0):
+    s = np.linspace(0, 1, m)
+    pol = np.radians(tilt_deg) * (1 - s)
+    az = 2 * np.pi * turns * s
+    t = np.stack([np.sin(pol) * np.cos(az), np.sin(pol) * np.sin(az), np.cos(pol)], 1)
+    return radius * t, t
+
+
+@pytest.fixture(scope="module")
+def ur5():
+    return load_robot("ur5"), load_workcell("ur5")
+
+
+def test_planned_dome_spiral_is_reproduced_by_pinocchio_fk(ur5):
+    robot, cell = ur5
+    c, t = _dome_spiral(300)
+    dt = step_times(c, cell.linear_speed, cell.min_step_time)
+    scene = CollisionScene(robot, cell)
+    motion = plan_motion(robot, cell, c, t, dt, collides=scene.collisions)
+    rows = motion.segment >= 0
+    assert rows.all()
+    assert (motion.solutions > 0).all()
+    flange = fk_reference(robot, motion.q)
+    pos, axis = waypoints_from_flange(cell, flange)
+    assert np.abs(pos - c).max() < 1e-6
+    assert np.abs(axis - t).max() < 1e-9
+    lo, hi = cell.limits(robot)
+    assert (motion.q >= lo).all() and (motion.q <= hi).all()
+    same = motion.segment[1:] == motion.segment[:-1]
+    speed = np.abs(np.diff(motion.q, axis=0)).max(axis=1) / np.diff(motion.t)
+    assert speed[same].max() <= cell.max_joint_speed * (1 + 1e-9)
+    assert not scene.collisions(motion.q).any()
+    assert motion.collision_checks < motion.solutions.sum()  # lazy: fewer checks than nodes
+
+
+def test_split_when_the_axis_flips_faster_than_xi(ur5):
+    robot, cell = ur5
+    c, t = _dome_spiral(60, turns=0.0, tilt_deg=40.0)
+    t[30:, :2] *= -1  # the tool axis jumps by 80° between waypoints 29 and 30
+    dt = step_times(c, cell.linear_speed, cell.min_step_time)
+    motion = plan_motion(robot, dataclasses.replace(cell, rotations=4), c, t, dt, max_rotations=8)
+    assert motion.splits == [30]
+    assert motion.rotations == 8  # p was doubled before the split was accepted
+    assert motion.segment[29] != motion.segment[30]
+    # a joint move (at ξ) between the two motions
+    jump = np.abs(motion.q[30] - motion.q[29]).max()
+    assert motion.t[30] - motion.t[29] >= jump / cell.max_joint_speed - 1e-12
+
+
+def test_rotations_double_until_a_path_exists(ur5):
+    robot, cell = ur5
+    m = 40
+    c = np.stack([np.linspace(-20, 20, m), np.zeros(m), np.full(m, 5.0)], 1)
+    t = np.tile([0.0, 0.0, 1.0], (m, 1))
+    dt = step_times(c, cell.linear_speed, cell.min_step_time)
+
+    def collides(q):  # forbid every pose whose deposition frame has x pointing to -X (θ = -π)
+        T_NP = np.linalg.inv(fk(robot, q) @ cell.platform_mount) @ cell.nozzle
+        return T_NP[:, 0, 0] < 0
+
+    motion = plan_motion(robot, dataclasses.replace(cell, rotations=1), c, t, dt, collides=collides)
+    assert motion.rotations == 2
+    assert (motion.segment == 0).all() and motion.splits == []
+    assert not collides(motion.q).any()
+
+
+def test_circular_joints_of_the_shipped_robots():
+    ur = load_robot("ur5")
+    assert circular_joints(ur.lower, ur.upper).tolist() == [True, True, False, True, True, True]
+    abb = load_robot("irb120")
+    assert circular_joints(abb.lower, abb.upper).tolist() == [False] * 5 + [True]
