@@ -1,8 +1,9 @@
 """``curvslice convert IN.gcode --to vplus|rapid|urscript|gcode6 --cell CELL``: slicer G-code to robot programs.
 
 Reads planar slicer G-code strictly (:mod:`curvslice.gcode`), maps it onto the cell
-(:mod:`curvslice.cell`: offset, workspace, nozzle orientation) and writes each requested target
-through the exporters. Seeds 003 (V+ + Arduino sketch) and 004 (RAPID) describe the targets.
+(:mod:`curvslice.cell`: offset, workspace, nozzle orientation), optionally levels it on a probed
+bed (:mod:`curvslice.levelling`) and writes each requested target through the exporters.
+Seeds 003 (V+ + Arduino sketch) and 004 (RAPID, bed levelling) describe the targets.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from curvslice.exporters.rapid import write_rapid
 from curvslice.exporters.urscript import write_urscript
 from curvslice.exporters.vplus import signal_count, speed_inventory, write_vplus
 from curvslice.gcode import read_gcode
+from curvslice.levelling import level_path, read_probe_csv
 
 TARGETS = ("vplus", "rapid", "urscript", "gcode6")
 
@@ -38,6 +40,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--fixed-orientation", action="store_true", help="ignore nX nY nZ; keep the cell's nozzle orientation")
     p.add_argument("--warn-workspace", action="store_true", help="report moves outside the workspace instead of refusing")
     p.add_argument("--lenient", action="store_true", help="warn about and skip unknown G-code instead of failing")
+    p.add_argument("--level", type=Path, metavar="PROBE_CSV", help="correct Z by a probed bed map (x,y,z CSV, robot frame)")
+    p.add_argument("--level-reference", type=float, default=0.0, help="bed height the G-code assumes, mm (default 0)")
+    p.add_argument("--level-tilt", action="store_true", help="also tilt the nozzle normal to the probed bed")
     p.set_defaults(run=run)
 
 
@@ -58,6 +63,8 @@ def run(args: argparse.Namespace) -> int:
     cell = dataclasses.replace(cell, **changes)
     program = read_gcode(args.gcode, lenient=args.lenient, home=cell.home)
     robot, warnings = robot_path(program, cell)
+    if args.level is not None:
+        robot = level_path(robot, read_probe_csv(args.level), reference=args.level_reference, tilt=args.level_tilt)
     for message in program.warnings + warnings:
         print(f"curvslice convert: warning: {message}", file=sys.stderr)
     name = args.name or _identifier(args.gcode.stem)[:20]

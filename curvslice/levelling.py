@@ -1,0 +1,181 @@
+"""Bed levelling from a probe grid (seed 004, Huygens §1.2.3, §2.5): height map, Z correction, tilt.
+
+A probe grid (CSV rows ``x,y,z``, mm, any order) must cover a rectangular lattice (spacings may
+differ per axis and be non-uniform). Heights between probes are bilinear (seed 004 Eq. 1-2):
+on the cell [x0, x1] × [y0, y1] with t = (x − x0)/(x1 − x0), u = (y − y0)/(y1 − y0),
+
+    h = (1 − t)(1 − u) z00 + t(1 − u) z10 + (1 − t) u z01 + t u z11,
+
+evaluated directly at each point — the seed instead tabulated integer coordinates into a stitched
+matrix and indexed it with ``round(y − 17.5)``, which shifted rows by one and, through Python's
+round-half-even, jumped between neighbours at every .5. The tilt is the exact gradient of the
+same patch, turned into a unit surface normal and a normalised quaternion. The RAPID probing
+routine (seed 004 Appendix 9) measures the grid with ``SearchL`` and writes the CSV itself.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from curvslice.cell import quaternion_multiply, tool_quaternions
+from curvslice.errors import CurvsliceError
+from curvslice.exporters import RobotPath, fixed
+
+
+@dataclass(frozen=True)
+class HeightMap:
+    """Probed bed heights on a lattice: ``z[j, i]`` is the height at (``xs[i]``, ``ys[j]``), mm."""
+
+    xs: np.ndarray  # (nx,) increasing
+    ys: np.ndarray  # (ny,) increasing
+    z: np.ndarray  # (ny, nx)
+
+    def _cells(self, x: np.ndarray, y: np.ndarray, outside: str):
+        x = np.asarray(x, float)
+        y = np.asarray(y, float)
+        out = (x < self.xs[0]) | (x > self.xs[-1]) | (y < self.ys[0]) | (y > self.ys[-1])
+        if outside == "error" and np.any(out):
+            k = int(np.argmax(out.ravel()))
+            raise CurvsliceError(
+                f"point ({x.ravel()[k]:.3f}, {y.ravel()[k]:.3f}) lies outside the probed area "
+                f"[{self.xs[0]:g}..{self.xs[-1]:g}] x [{self.ys[0]:g}..{self.ys[-1]:g}]"
+            )
+        xc = np.clip(x, self.xs[0], self.xs[-1])
+        yc = np.clip(y, self.ys[0], self.ys[-1])
+        i = np.clip(np.searchsorted(self.xs, xc, side="right") - 1, 0, len(self.xs) - 2)
+        j = np.clip(np.searchsorted(self.ys, yc, side="right") - 1, 0, len(self.ys) - 2)
+        wx = self.xs[i + 1] - self.xs[i]
+        wy = self.ys[j + 1] - self.ys[j]
+        t = (xc - self.xs[i]) / wx
+        u = (yc - self.ys[j]) / wy
+        corners = (self.z[j, i], self.z[j, i + 1], self.z[j + 1, i], self.z[j + 1, i + 1])
+        return t, u, wx, wy, corners
+
+    def height(self, x, y, outside: str = "clamp") -> np.ndarray:
+        """Bilinear height at (x, y). Outside the probes: ``"clamp"`` to the nearest edge, or ``"error"``."""
+        t, u, _, _, (z00, z10, z01, z11) = self._cells(x, y, outside)
+        return (1 - t) * (1 - u) * z00 + t * (1 - u) * z10 + (1 - t) * u * z01 + t * u * z11
+
+    def normal(self, x, y, outside: str = "clamp") -> np.ndarray:
+        """Unit upward normal (…, 3) of the bilinear surface: (−∂h/∂x, −∂h/∂y, 1) normalised."""
+        t, u, wx, wy, (z00, z10, z01, z11) = self._cells(x, y, outside)
+        dhdx = ((1 - u) * (z10 - z00) + u * (z11 - z01)) / wx
+        dhdy = ((1 - t) * (z01 - z00) + t * (z11 - z10)) / wy
+        n = np.stack([-dhdx, -dhdy, np.ones_like(dhdx)], axis=-1)
+        return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+def heightmap_from_points(points: np.ndarray, source: str = "probe grid") -> HeightMap:
+    """A :class:`HeightMap` from (N, 3) probe points that cover a rectangular lattice exactly once."""
+    pts = np.asarray(points, float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
+        raise CurvsliceError(f"{source}: expected finite rows of x, y, z")
+    xs, xi = np.unique(pts[:, 0], return_inverse=True)
+    ys, yi = np.unique(pts[:, 1], return_inverse=True)
+    if len(xs) < 2 or len(ys) < 2:
+        raise CurvsliceError(f"{source}: needs at least 2 distinct x and 2 distinct y values")
+    count = np.zeros((len(ys), len(xs)), int)
+    np.add.at(count, (yi.ravel(), xi.ravel()), 1)
+    if np.any(count != 1):
+        j, i = np.argwhere(count != 1)[0]
+        what = "missing" if count[j, i] == 0 else "probed more than once"
+        raise CurvsliceError(f"{source}: grid point ({xs[i]:g}, {ys[j]:g}) is {what}; probes must form a full lattice")
+    z = np.empty((len(ys), len(xs)))
+    z[yi.ravel(), xi.ravel()] = pts[:, 2]
+    return HeightMap(xs, ys, z)
+
+
+def read_probe_csv(path: str | Path) -> HeightMap:
+    """Read ``x,y,z`` rows (a header line and ``#`` comments are allowed)."""
+    path = Path(path)
+    if not path.is_file():
+        raise CurvsliceError(f"probe file {path} does not exist")
+    rows = []
+    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+        text = line.split("#", 1)[0].strip()
+        if not text:
+            continue
+        parts = [p.strip() for p in text.replace(";", ",").split(",")]
+        try:
+            rows.append([float(p) for p in parts])
+        except ValueError:
+            if rows:  # only the first line may be a header
+                raise CurvsliceError(f"{path}, line {lineno}: expected numbers x,y,z, got {text!r}") from None
+            continue
+        if len(parts) != 3:
+            raise CurvsliceError(f"{path}, line {lineno}: expected 3 values x,y,z, got {len(parts)}")
+    return heightmap_from_points(np.asarray(rows, float).reshape(-1, 3), str(path))
+
+
+def write_probe_csv(path: str | Path, hmap: HeightMap) -> None:
+    """Write the map as ``x,y,z`` rows (the format :func:`read_probe_csv` reads)."""
+    X, Y = np.meshgrid(hmap.xs, hmap.ys)
+    rows = [f"{float(x)!r},{float(y)!r},{float(z)!r}" for x, y, z in zip(X.ravel(), Y.ravel(), hmap.z.ravel())]
+    Path(path).write_text("x,y,z\n" + "\n".join(rows) + "\n")
+
+
+def level_path(robot: RobotPath, hmap: HeightMap, *, reference: float = 0.0, tilt: bool = False,
+               outside: str = "clamp") -> RobotPath:
+    """Apply the bed map to a robot path: z += h(x, y) − ``reference``; with ``tilt`` the tool is
+    also turned by the minimal rotation from +Z to the bed normal (seed 004 §2.5.2, Eq. 7)."""
+    x, y = robot.positions[:, 0], robot.positions[:, 1]
+    positions = robot.positions.copy()
+    positions[:, 2] += hmap.height(x, y, outside) - reference
+    quats = robot.quaternions
+    if tilt:
+        turn = tool_quaternions(hmap.normal(x, y, outside), (1.0, 0.0, 0.0, 0.0))
+        quats = quaternion_multiply(turn, quats)
+        quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    return dataclasses.replace(robot, positions=positions, quaternions=quats)
+
+
+def write_probe_routine(
+    path: str | Path,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    *,
+    name: str = "BedProbe",
+    probe_offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    orientation: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 0.0),
+    signal: str = "diProbe",
+    tool: str = "tool0",
+    wobj: str = "wobj0",
+    clearance: float = 20.0,
+    depth: float = 5.0,
+    csv_name: str = "HOME:/probe.csv",
+) -> int:
+    """Write a RAPID module probing the lattice ``xs`` × ``ys`` (seed 004 Appendix 9); returns the count.
+
+    For each point (row by row, serpentine) the nozzle moves ``clearance`` above the target with
+    the probe over the grid point (``probe_offset`` = probe tip − nozzle tip), searches down to
+    ``depth`` below z = 0 with ``SearchL \\Stop`` until ``signal`` rises, retracts, and appends the
+    touched bed point (search position + ``probe_offset``) to ``csv_name`` as ``x,y,z``.
+    """
+    xs = np.asarray(xs, float)
+    ys = np.asarray(ys, float)
+    q = np.asarray(orientation, float)
+    q = q / np.linalg.norm(q)
+    quat = ",".join(f"{v:.9f}" for v in q)
+    ox, oy, oz = probe_offset
+    order = [(i, j) for j in range(len(ys)) for i in (range(len(xs)) if j % 2 == 0 else reversed(range(len(xs))))]
+    lines = [f"MODULE {name}", "  VAR iodev probelog;", "  VAR robtarget touched;"]
+    for k, (i, j) in enumerate(order, start=1):
+        x, y = fixed(xs[i] - ox, 3), fixed(ys[j] - oy, 3)
+        lines.append(f"  CONST robtarget c{k} := [[{x},{y},0.0],[{quat}],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];")
+    where = f"{tool}\\WObj:={wobj}"
+    lines += [f"  PROC {name}()", f'    Open "{csv_name}", probelog \\Write;', '    Write probelog, "x,y,z";']
+    for k in range(1, len(order) + 1):
+        lines += [
+            f"    MoveL Offs(c{k},0,0,{fixed(clearance, 3)}), v50, fine, {where};",
+            f"    SearchL \\Stop, {signal}, touched, Offs(c{k},0,0,{fixed(-depth, 3)}), v1, {where};",
+            f"    Write probelog, NumToStr(touched.trans.x + {fixed(ox, 4)},4) + \",\" + "
+            f"NumToStr(touched.trans.y + {fixed(oy, 4)},4) + \",\" + NumToStr(touched.trans.z + {fixed(oz, 4)},4);",
+            f"    MoveL Offs(c{k},0,0,{fixed(clearance, 3)}), v10, fine, {where};",
+        ]
+    lines += ["    Close probelog;", "  ENDPROC", "ENDMODULE"]
+    Path(path).write_text("\n".join(lines) + "\n")
+    return len(order)
