@@ -94,6 +94,12 @@ class CollisionScene:
             self.carried.append(_mesh_shape("part", mesh))
         self._build_pairs()
 
+    def for_layer(self, layers: list[trimesh.Trimesh], layer: int):
+        """Carry the union of layers 1..layer-1 (print order) and return :meth:`collisions`."""
+        earlier = [m for m in layers[: max(layer - 1, 0)] if len(m.faces)]
+        self.set_part(trimesh.util.concatenate(earlier) if earlier else None)
+        return self.collisions
+
     def _build_pairs(self) -> None:
         L, C, S = len(self.links), len(self.carried), len(self.static)
         names = [s.link for s in self.robot.links]

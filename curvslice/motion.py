@@ -14,6 +14,7 @@ tested whole and the search resumed from it; the result equals checking every no
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -352,3 +353,94 @@ def _timestamps(q: np.ndarray, segment: np.ndarray, dt: np.ndarray, max_speed: f
         t[i] = clock
         last = i
     return t
+
+
+@dataclass
+class PrintMotion:
+    """The joint trajectory of a whole print: one row per realized waypoint, in print order."""
+
+    index: np.ndarray  # (R,) row of the waypoint in the tool-path arrays
+    t: np.ndarray  # (R,) s, strictly increasing
+    q: np.ndarray  # (R, 6) rad
+    segment: np.ndarray  # (R,) global motion id; a new id is reached by a joint move
+    extruding: np.ndarray  # (R,) bool, extruder on while moving to the row
+    layers: list[dict]  # per layer: waypoints, rotations, splits, skipped, checks, seconds
+
+
+def segment_speeds(path_id: np.ndarray, feed: np.ndarray, cell: Workcell) -> np.ndarray:
+    """Speed (mm/s) of each step j -> j+1: the G-code feed inside a path (v̄ where it is 0), the
+    workcell's travel speed for a jump to a new path."""
+    same = path_id[1:] == path_id[:-1]
+    feed_s = np.asarray(feed[1:], float) / 60.0
+    return np.where(same, np.where(feed_s > 0, feed_s, cell.linear_speed), cell.travel_speed)
+
+
+def plan_print(
+    robot: Robot,
+    cell: Workcell,
+    toolpaths: dict[str, np.ndarray],
+    collides_for_layer: Callable[[int], Callable[[np.ndarray], np.ndarray] | None] | None = None,
+    cost: str = "l1",
+    max_rotations: int | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> PrintMotion:
+    """Plan every layer of ``toolpaths`` (keys of ``toolpaths.npz``) as its own ladder graph
+    (multi-source, like the thesis's per-tool-path graphs); layers are joined by joint moves.
+
+    ``collides_for_layer(layer)`` returns the collision predicate valid while printing that layer
+    (the part then is the union of the earlier layers). ``progress(n)`` is told of n waypoints done.
+    """
+    positions = np.asarray(toolpaths["positions"], float)
+    normals = np.asarray(toolpaths["normals"], float)
+    layer = np.asarray(toolpaths["layer"])
+    path_id = np.asarray(toolpaths["path"])
+    feed = np.asarray(toolpaths["feed"], float)
+    extrusion = np.asarray(toolpaths["extrusion"], float)
+    out_idx, out_t, out_q, out_seg, out_ext, stats = [], [], [], [], [], []
+    clock, seg0, last_q = 0.0, 0, None
+    for value in np.unique(layer):
+        start = time.perf_counter()
+        rows = np.flatnonzero(layer == value)
+        speed = segment_speeds(path_id[rows], feed[rows], cell)
+        dt = step_times(positions[rows], speed, cell.min_step_time) if len(rows) > 1 else np.zeros(0)
+        collides = collides_for_layer(int(value)) if collides_for_layer else None
+        motion = plan_motion(robot, cell, positions[rows], normals[rows], dt, collides, cost, None, max_rotations)
+        done = motion.segment >= 0
+        if done.any():
+            first = motion.q[done][0]
+            move = 0.0 if last_q is None else max(float(np.abs(first - last_q).max()) / cell.max_joint_speed, cell.min_step_time)
+            base = clock + move - float(motion.t[done][0])
+            seg = motion.segment[done]
+            seg_global = seg0 + np.cumsum(np.r_[True, seg[1:] != seg[:-1]]) - 1
+            starts = np.r_[True, seg_global[1:] != seg_global[:-1]]
+            out_idx.append(rows[done])
+            out_t.append(motion.t[done] + base)
+            out_q.append(motion.q[done])
+            out_seg.append(seg_global)
+            out_ext.append((extrusion[rows[done]] > 0) & ~starts)
+            clock = float(out_t[-1][-1])
+            seg0 = int(seg_global[-1]) + 1
+            last_q = motion.q[done][-1]
+        stats.append({
+            "layer": int(value),
+            "waypoints": int(len(rows)),
+            "rotations": motion.rotations,
+            "ik_solutions_mean": round(float(motion.solutions.mean()), 2),
+            "ik_solutions_min": int(motion.solutions.min()),
+            "splits": [int(rows[s]) for s in motion.splits],
+            "winding_splits": [int(rows[s]) for s in motion.winding_splits],
+            "skipped": int((~done).sum()),
+            "collision_checks": motion.collision_checks,
+            "seconds": round(time.perf_counter() - start, 3),
+        })
+        if progress:
+            progress(len(rows))
+    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape)  # noqa: E731
+    return PrintMotion(
+        index=cat(out_idx, (0,)).astype(np.int64),
+        t=cat(out_t, (0,)),
+        q=cat(out_q, (0, 6)),
+        segment=cat(out_seg, (0,)).astype(np.int64),
+        extruding=cat(out_ext, (0,)).astype(bool),
+        layers=stats,
+    )

@@ -36,6 +36,7 @@ or ``{"name": str, "type": "cylinder", "radius_mm": r, "length_mm": h, "xyz_mm":
 from __future__ import annotations
 
 import json
+import warnings
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -101,7 +102,9 @@ def pose_matrix(xyz_mm, rpy_deg) -> np.ndarray:
 
 
 def _pose_dict(T: np.ndarray) -> dict[str, list[float]]:
-    rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True)
+    with warnings.catch_warnings():  # at ±90° pitch any roll/yaw split is exact; scipy warns anyway
+        warnings.simplefilter("ignore", UserWarning)
+        rpy = Rotation.from_matrix(T[:3, :3]).as_euler("xyz", degrees=True)
     return {"xyz_mm": [round(float(v), 9) for v in T[:3, 3]], "rpy_deg": [round(float(v), 9) for v in rpy]}
 
 

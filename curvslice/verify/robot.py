@@ -1,0 +1,132 @@
+"""Re-check of the robot stage from ``joints.csv``, ``workcell.json``, ``toolpaths.npz``, the
+robot programs and ``layers/`` (thesis §2.5 Eq. 2.3, §3.5.3, §4.3.1).
+
+Independent of the planner: poses come from pinocchio's FK on the robot's URDF (not the analytic
+IK) and Eq. 2.3 is inverted here; collisions are tested with fcl on every body pair (without the
+planner's bounding-box shortcut), the printed part being the union of the earlier layers.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from curvslice.collision import CollisionScene
+from curvslice.exporters.joints_csv import read_joints_csv
+from curvslice.exporters.rapid import read_rapid_joints
+from curvslice.exporters.urscript import read_urscript_joints
+from curvslice.kinematics import fk_reference, load_robot
+from curvslice.verify import Check
+from curvslice.workcell import workcell_from_dict
+
+STAGE = "robot"
+POSITION_TOL = 1e-3  # mm (1e-6 m)
+AXIS_TOL = 1e-6  # rad
+
+
+def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1.0, 1.0))
+
+
+def _layer_meshes(outdir: Path) -> list[trimesh.Trimesh]:
+    return [trimesh.load(p, force="mesh") for p in sorted((outdir / "layers").glob("layer_*.ply"))]
+
+
+def checks(outdir: Path) -> list[Check] | None:
+    csv = outdir / "joints.csv"
+    if not csv.exists():
+        return None
+    out: list[Check] = []
+    rows = read_joints_csv(csv)
+    spec = json.loads((outdir / "workcell.json").read_text())
+    cell = workcell_from_dict(spec, "workcell.json")
+    robot = load_robot(cell.robot)
+    q, t, seg = rows["q"], rows["t"], rows["segment"]
+    n = len(q)
+
+    # Eq. 2.3 inverted with pinocchio's flange poses: nozzle tip and axis in the model frame
+    platform_in_base = fk_reference(robot, q) @ cell.platform_mount
+    nozzle_in_model = np.linalg.inv(platform_in_base) @ cell.nozzle
+    tip, axis = nozzle_in_model[:, :3, 3], nozzle_in_model[:, :3, 2]
+    tp = np.load(outdir / "toolpaths.npz") if (outdir / "toolpaths.npz").exists() else None
+    want_pos, want_axis = rows["positions"], rows["normals"]
+    if tp is not None:
+        want_pos = tp["positions"][rows["index"]]
+        want_axis = tp["normals"][rows["index"]]
+        want_axis = want_axis / np.linalg.norm(want_axis, axis=1, keepdims=True)
+        covered = len(np.unique(rows["index"]))
+        total = len(tp["positions"])
+        out.append(Check(STAGE, "waypoints realized", covered == total, f"{covered}/{total}",
+                         "every tool-path sample has a joint row" if covered == total else
+                         "unreachable samples have no joint row (see report.json robot.layers[].skipped)"))
+    pos_err = np.linalg.norm(tip - want_pos, axis=1).max() if n else 0.0
+    ax_err = _angle(axis, want_axis).max() if n else 0.0
+    out.append(Check(STAGE, "FK reproduces waypoint position", pos_err <= POSITION_TOL, f"{pos_err:.2e} mm",
+                     f"pinocchio FK of every row vs its waypoint (tol {POSITION_TOL} mm)"))
+    out.append(Check(STAGE, "FK reproduces nozzle axis", ax_err <= AXIS_TOL, f"{ax_err:.2e} rad",
+                     f"tool orientation vs nozzle axis (tol {AXIS_TOL} rad)"))
+
+    lo, hi = cell.limits(robot)
+    excess = float(np.maximum(q - hi, lo - q).max()) if n else -1.0
+    out.append(Check(STAGE, "joint limits", excess <= 1e-9, f"{max(excess, 0.0):.2e} rad",
+                     "largest excursion beyond the URDF/workcell limits"))
+
+    steps = np.diff(t)
+    out.append(Check(STAGE, "time increases", bool((steps > 0).all()) if n > 1 else True,
+                     f"min step {steps.min():.4f} s" if n > 1 else "-"))
+    inside = seg[1:] == seg[:-1]
+    speed = np.abs(np.diff(q, axis=0)).max(axis=1) / np.where(steps > 0, steps, np.nan) if n > 1 else np.zeros(0)
+    top = float(np.nanmax(speed[inside])) if inside.any() else 0.0
+    out.append(Check(STAGE, "joint speed within segments", top <= cell.max_joint_speed * (1 + 1e-6),
+                     f"{top:.4f} rad/s", f"max ‖Δq‖∞/Δt inside motion segments, ξ = {cell.max_joint_speed} rad/s"))
+    max_step = float(np.abs(np.diff(q, axis=0))[inside].max()) if inside.any() else 0.0
+    out.append(Check(STAGE, "max joint step in a segment", True, f"{max_step:.4f} rad",
+                     f"{int(seg.max()) + 1 if n else 0} motion segments"))
+
+    out.append(_collision_check(outdir, robot, cell, rows))
+    out.extend(_program_checks(outdir, rows))
+    return out
+
+
+def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> Check:
+    platform = None
+    if (outdir / "field.npz").exists():
+        with np.load(outdir / "field.npz") as field:
+            if "platform_vertices" in field:
+                platform = field["platform_vertices"]
+    scene = CollisionScene(robot, cell, platform)
+    meshes = _layer_meshes(outdir)
+    hits: list[str] = []
+    count = 0
+    for value in np.unique(rows["layer"]):
+        scene.for_layer(meshes, int(value))  # carry the union of the earlier layers
+        for i in np.flatnonzero(rows["layer"] == value):
+            pairs = scene.colliding_pairs(rows["q"][i])
+            if pairs:
+                count += 1
+                if len(hits) < 3:
+                    hits.append(f"row {i}: {pairs[0][0]}-{pairs[0][1]}")
+    return Check(STAGE, "no collision at any row", count == 0, f"{count} rows",
+                 "; ".join(hits) if hits else "fcl on all pairs; part = union of earlier layers")
+
+
+def _program_checks(outdir: Path, rows: dict[str, np.ndarray]) -> list[Check]:
+    found = []
+    scripts = sorted(outdir.glob("curvslice_[0-9]*.script"))
+    if scripts:
+        found.append(("URScript", read_urscript_joints(scripts)))
+    main = outdir / "curvslice_main.mod"
+    if main.exists():
+        found.append(("RAPID", read_rapid_joints([main, *sorted(outdir.glob("curvslice_mod*.mod"))])))
+    out = []
+    for name, prog in found:
+        same = len(prog["q"]) == len(rows["q"])
+        dq = float(np.abs(prog["q"] - rows["q"]).max()) if same else np.inf
+        dt = float(np.abs((prog["t"] - prog["t"][0]) - (rows["t"] - rows["t"][0])).max()) if same else np.inf
+        ok = same and dq < 1e-6 and dt < 1e-6 and np.array_equal(prog["extruding"], rows["extruding"])
+        out.append(Check(STAGE, f"{name} program matches joints.csv", ok,
+                         f"Δq {dq:.1e} rad, Δt {dt:.1e} s" if same else f"{len(prog['q'])} vs {len(rows['q'])} rows"))
+    return out
