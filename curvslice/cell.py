@@ -207,6 +207,26 @@ def tool_quaternions(normals: np.ndarray, vertical: tuple[float, float, float, f
     return q / np.linalg.norm(q, axis=1, keepdims=True)
 
 
+def check_workspace(positions: np.ndarray, cell: Cell, labels: list[str]) -> list[str]:
+    """Refuse (policy ``"error"``) or report (``"warn"``) robot-frame positions outside the cell's box.
+
+    ``labels[i]`` names row i in the message (e.g. its G-code line).
+    """
+    lo, hi = np.asarray(cell.workspace_min, float), np.asarray(cell.workspace_max, float)
+    outside = np.any((positions < lo) | (positions > hi), axis=1)
+    if not outside.any():
+        return []
+    i = int(np.argmax(outside))
+    x, y, z = positions[i]
+    message = (
+        f"{labels[i]}: move to ({x:.3f}, {y:.3f}, {z:.3f}) mm is outside the workspace of cell "
+        f"{cell.name!r} [{lo[0]:g}..{hi[0]:g}] x [{lo[1]:g}..{hi[1]:g}] x [{lo[2]:g}..{hi[2]:g}]"
+    )
+    if cell.workspace_policy == "error":
+        raise CurvsliceError(message + " (adjust the cell's offset or limits)")
+    return [f"{message}; {int(outside.sum())} moves outside in total"]
+
+
 def robot_path(program: GcodeProgram, cell: Cell) -> tuple[RobotPath, list[str]]:
     """Map a G-code program onto the cell: offset, workspace check, orientation, speeds.
 
@@ -218,18 +238,7 @@ def robot_path(program: GcodeProgram, cell: Cell) -> tuple[RobotPath, list[str]]
     if len(program) == 0:
         raise CurvsliceError("the G-code has no moves to convert")
     pos = program.positions + np.asarray(cell.offset, float)
-    lo, hi = np.asarray(cell.workspace_min, float), np.asarray(cell.workspace_max, float)
-    outside = np.any((pos < lo) | (pos > hi), axis=1)
-    if outside.any():
-        i = int(np.argmax(outside))
-        x, y, z = pos[i]
-        message = (
-            f"line {program.line[i]}: move to ({x:.3f}, {y:.3f}, {z:.3f}) mm is outside the workspace of cell "
-            f"{cell.name!r} [{lo[0]:g}..{hi[0]:g}] x [{lo[1]:g}..{hi[1]:g}] x [{lo[2]:g}..{hi[2]:g}]"
-        )
-        if cell.workspace_policy == "error":
-            raise CurvsliceError(message + " (adjust the cell's offset or limits)")
-        warnings.append(f"{message}; {int(outside.sum())} moves outside in total")
+    warnings += check_workspace(pos, cell, [f"line {k}" for k in program.line])
     extrusion = program.extrusion
     no_feed = (program.feed <= 0) & ~program.home
     if np.any(no_feed & (extrusion > 0)):

@@ -178,7 +178,7 @@ def squash(text: str) -> str:
 
 
 def run_cli(argv: list[str], monkeypatch) -> int:
-    monkeypatch.setattr(cli, "COMMANDS", ("convert",))
+    monkeypatch.setattr(cli, "COMMANDS", ("convert",))  # the other commands may not exist yet
     return cli.main(argv)
 
 

@@ -13,7 +13,8 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from curvslice.cell import gcode6_samples, load_cell, robot_path
+from curvslice.cell import Cell, gcode6_samples, load_cell, robot_path
+from curvslice.exporters import RobotPath
 from curvslice.exporters.arduino import write_accelstepper_sketch
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.exporters.rapid import write_rapid
@@ -51,6 +52,30 @@ def _identifier(stem: str) -> str:
     return name if name[:1].isalpha() else f"p_{name}"
 
 
+def write_targets(robot: RobotPath, cell: Cell, targets: list[str], out: Path, name: str, source: str) -> list[Path]:
+    """Write ``robot`` once per target into ``out``; returns the files written."""
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    for target in dict.fromkeys(targets):
+        if target == "vplus":
+            patterns = speed_inventory(robot)
+            write_vplus(out / f"{name}.v2", robot, patterns, cell.vplus, program=name[:15])
+            sketch = out / name / f"{name}.ino"
+            sketch.parent.mkdir(exist_ok=True)
+            write_accelstepper_sketch(sketch, patterns, signal_count(len(patterns), cell.vplus), cell.syringe)
+            written += [out / f"{name}.v2", sketch]
+        elif target == "rapid":
+            written += write_rapid(out, robot, cell.rapid, name=name)
+        elif target == "urscript":
+            written += write_urscript(out, robot, cell.urscript, name=name)
+        else:
+            samples = gcode6_samples(robot, cell.orientation)
+            header = {"source": source, "cell": cell.name, "offset_mm": list(cell.offset)}
+            write_gcode6(out / f"{name}.gcode", header=header, path_id=samples.pop("path_id"), **samples)
+            written.append(out / f"{name}.gcode")
+    return written
+
+
 def run(args: argparse.Namespace) -> int:
     cell = load_cell(args.cell)
     changes = {}
@@ -68,25 +93,7 @@ def run(args: argparse.Namespace) -> int:
     for message in program.warnings + warnings:
         print(f"curvslice convert: warning: {message}", file=sys.stderr)
     name = args.name or _identifier(args.gcode.stem)[:20]
-    args.out.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
-    for target in dict.fromkeys(args.to):
-        if target == "vplus":
-            patterns = speed_inventory(robot)
-            write_vplus(args.out / f"{name}.v2", robot, patterns, cell.vplus, program=name[:15])
-            sketch = args.out / name / f"{name}.ino"
-            sketch.parent.mkdir(exist_ok=True)
-            write_accelstepper_sketch(sketch, patterns, signal_count(len(patterns), cell.vplus), cell.syringe)
-            written += [args.out / f"{name}.v2", sketch]
-        elif target == "rapid":
-            written += write_rapid(args.out, robot, cell.rapid, name=name)
-        elif target == "urscript":
-            written += write_urscript(args.out, robot, cell.urscript, name=name)
-        else:
-            samples = gcode6_samples(robot, cell.orientation)
-            header = {"source": args.gcode.name, "cell": cell.name, "offset_mm": list(cell.offset)}
-            write_gcode6(args.out / f"{name}.gcode", header=header, path_id=samples.pop("path_id"), **samples)
-            written.append(args.out / f"{name}.gcode")
+    written = write_targets(robot, cell, args.to, args.out, name, source=args.gcode.name)
     print(f"converted {len(robot)} moves from {args.gcode} for cell {cell.name!r}: "
           + ", ".join(str(p) for p in written))
     return 0
