@@ -126,11 +126,14 @@ class CollisionScene:
         static = np.broadcast_to(np.array(self.static_poses).reshape(-1, 4, 4), (n, len(self.static), 4, 4))
         return np.concatenate([links, carried, static], axis=1)
 
-    def collisions(self, q: np.ndarray) -> np.ndarray:
+    def collisions(self, q: np.ndarray, chunk: int = 256) -> np.ndarray:
         """(n,) bool: True where configuration q[i] (rad) puts any checked pair in contact."""
         q = np.atleast_2d(np.asarray(q, float))
         if len(q) == 0 or len(self.pairs) == 0:
             return np.zeros(len(q), bool)
+        return np.concatenate([self._collisions(q[s : s + chunk]) for s in range(0, len(q), chunk)])
+
+    def _collisions(self, q: np.ndarray) -> np.ndarray:
         poses = self._poses(q)
         a, b = self.pairs[:, 0], self.pairs[:, 1]
         # world-aligned boxes around every body: pairs whose boxes are disjoint cannot touch

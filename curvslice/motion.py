@@ -84,29 +84,80 @@ def edge_weights(
     return total
 
 
+def sparse_edges(
+    qa: np.ndarray,
+    qb: np.ndarray,
+    dt: float,
+    max_speed: float,
+    circular: np.ndarray,
+    cost: str = "l1",
+    weights: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The finite entries of :func:`edge_weights` as (ia, ib, w), found without the dense matrix:
+    candidates are the pairs whose first joint differs by at most ξΔt (a sorted-window search),
+    then every joint is tested exactly as in :func:`edge_weights` (same arithmetic, same result)."""
+    limit = max_speed * dt
+    ka = np.flatnonzero(~np.isnan(qa[:, 0]))
+    kb = np.flatnonzero(~np.isnan(qb[:, 0]))
+    if len(ka) == 0 or len(kb) == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    if limit >= 1.0:  # wide windows: the dense matrix is as cheap
+        w = edge_weights(qa, qb, dt, max_speed, circular, cost, weights)
+        ia, ib = np.nonzero(np.isfinite(w))
+        return ia, ib, w[ia, ib]
+    b0 = qb[kb, 0]
+    copies = (b0, b0 + TWO_PI, b0 - TWO_PI) if circular[0] else (b0,)
+    values = np.concatenate(copies)
+    owner = np.tile(np.arange(len(kb)), len(copies))
+    order = np.argsort(values, kind="stable")
+    sorted_values = values[order]
+    a0 = qa[ka, 0]
+    lo = np.searchsorted(sorted_values, a0 - limit, "left")
+    hi = np.searchsorted(sorted_values, a0 + limit, "right")
+    counts = hi - lo
+    ia = np.repeat(np.arange(len(ka)), counts)
+    pos = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(lo, counts)
+    ib = owner[order[pos]]
+    ia, ib = ka[ia], kb[ib]
+    wj = np.ones(qa.shape[-1]) if weights is None else np.asarray(weights, float)
+    total = np.zeros(len(ia))
+    largest = np.zeros(len(ia))
+    for j in range(qa.shape[-1]):
+        d = np.abs(qb[ib, j] - qa[ia, j])
+        if circular[j]:
+            np.minimum(d, TWO_PI - d, out=d)
+        np.maximum(largest, d, out=largest)
+        if cost != "l1":
+            d *= d
+        total += wj[j] * d
+    keep = largest <= limit
+    return ia[keep], ib[keep], total[keep]
+
+
 def _relax(
-    q: np.ndarray,
     valid: np.ndarray,
-    dt: np.ndarray,
     best: np.ndarray,
     pred: np.ndarray,
     start: int,
-    edge: Callable[[int], np.ndarray],
+    edges: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]],
 ) -> None:
     """Fill ``best``/``pred`` for rungs ``start..m-1`` (rung start-1 already final)."""
-    m = len(q)
+    m = len(valid)
     for i in range(max(start, 0), m):
-        if i == 0 or not np.isfinite(best[i - 1]).any():
-            best[i] = np.where(valid[i], 0.0, np.inf)  # sources: a new motion starts here
-            pred[i] = -1
-            continue
-        total = best[i - 1][:, None] + edge(i - 1)
-        arg = np.argmin(total, axis=0)
-        best[i] = total[arg, np.arange(total.shape[1])]
-        best[i][~valid[i]] = np.inf
-        pred[i] = np.where(np.isfinite(best[i]), arg, -1)
-        if not np.isfinite(best[i]).any():  # disconnected: restart from every node of this rung
-            best[i] = np.where(valid[i], 0.0, np.inf)
+        best[i] = np.inf
+        pred[i] = -1
+        if i > 0 and np.isfinite(best[i - 1]).any():
+            ia, ib, w = edges(i - 1)
+            total = best[i - 1][ia] + w
+            ok = np.isfinite(total) & valid[i][ib]
+            ia, ib, total = ia[ok], ib[ok], total[ok]
+            if len(ib):
+                order = np.lexsort((ia, total, ib))  # per target: least cost, then first source
+                first = order[np.r_[True, ib[order][1:] != ib[order][:-1]]]
+                best[i][ib[first]] = total[first]
+                pred[i][ib[first]] = ia[first]
+                continue
+        best[i] = np.where(valid[i], 0.0, np.inf)  # sources: a new motion starts here
 
 
 def _backtrack(best: np.ndarray, pred: np.ndarray) -> LadderPath:
@@ -154,8 +205,8 @@ def shortest_path(
     m, K = valid.shape
     best = np.full((m, K), np.inf)
     pred = np.full((m, K), -1)
-    edge = lambda i: edge_weights(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)  # noqa: E731
-    _relax(q, valid, dt, best, pred, 0, edge)
+    edges = lambda i: sparse_edges(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)  # noqa: E731
+    _relax(valid, best, pred, 0, edges)
     checked = np.zeros((m, K), bool)
     asked = 0
     while True:
@@ -181,7 +232,7 @@ def shortest_path(
             valid[rr[~ok], kk[~ok]] = False
         valid[bad, path.node[bad]] = False
         q[~valid] = np.nan
-        _relax(q, valid, dt, best, pred, int(bad.min()), edge)
+        _relax(valid, best, pred, int(bad.min()), edges)
 
 
 def reference_shortest_path(

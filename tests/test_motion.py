@@ -17,6 +17,7 @@ from curvslice.motion import (
     plan_motion,
     reference_shortest_path,
     shortest_path,
+    sparse_edges,
     step_times,
     unwind,
 )
@@ -26,10 +27,16 @@ from curvslice.workcell import load_workcell, waypoints_from_flange
 def _random_ladder(rng, m_max=30, k_max=8):
     m = int(rng.integers(2, m_max))
     K = int(rng.integers(1, k_max))
-    q = rng.uniform(-np.pi, np.pi, (m, K, 6))
+    if rng.random() < 0.5:  # wide steps (dense edge search) on scattered nodes
+        q = rng.uniform(-np.pi, np.pi, (m, K, 6))
+        dt = rng.uniform(0.5, 3.0, m - 1)  # with ξ = 1 many transitions are too fast: disconnections
+    else:  # short steps (sorted-window edge search) on nodes drifting near their predecessors
+        K = 4 * K
+        q = np.cumsum(rng.normal(0, 0.15, (m, K, 6)), axis=0) + rng.uniform(-np.pi, np.pi, (1, K, 6))
+        q = (q + np.pi) % (2 * np.pi) - np.pi
+        dt = rng.uniform(0.05, 0.6, m - 1)
     valid = rng.random((m, K)) < 0.7
     valid[rng.random(m) < 0.1] = False  # whole rungs without a feasible pose
-    dt = rng.uniform(0.5, 3.0, m - 1)  # with ξ = 1 many transitions are too fast: disconnections
     circ = rng.random(6) < 0.5
     return q, valid, dt, circ
 
@@ -55,7 +62,7 @@ def test_edge_weights_follow_eq_3_4_and_4_4_4_5():
 def test_dag_shortest_path_equals_scipy_dijkstra():
     rng = np.random.default_rng(1)
     splits = empty = 0
-    for trial in range(300):
+    for trial in range(400):
         q, valid, dt, circ = _random_ladder(rng)
         cost = "l1" if trial % 2 else "quadratic"
         got, _, _ = shortest_path(q, valid, dt, 1.0, circ, cost)
@@ -71,6 +78,20 @@ def test_dag_shortest_path_equals_scipy_dijkstra():
         splits += int(got.segment.max() > 0)
         empty += int((got.node < 0).any())
     assert splits > 50 and empty > 50  # the randomized cases really exercise disconnections
+
+
+def test_sparse_edges_equal_the_dense_matrix():
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        q, valid, dt, circ = _random_ladder(rng)
+        q = np.where(valid[..., None], q, np.nan)
+        for i in range(len(q) - 1):
+            dense = edge_weights(q[i], q[i + 1], dt[i], 1.0, circ, "quadratic")
+            ia, ib, w = sparse_edges(q[i], q[i + 1], dt[i], 1.0, circ, "quadratic")
+            got = np.full_like(dense, np.inf)
+            got[ia, ib] = w
+            assert len(set(zip(ia.tolist(), ib.tolist()))) == len(ia)  # no duplicate edges
+            np.testing.assert_array_equal(got, dense)
 
 
 def test_lazy_node_filter_equals_filtering_first():

@@ -1,0 +1,77 @@
+"""Motion-stage benchmark: analytic IK throughput per robot and ladder-graph time vs waypoints.
+
+The thesis's reference (Table 4.2, WS1): 2,545 waypoints, graph initialization 86 s. Here the
+ladder is built from a spiral on a dome (tilts up to 60°) in the shipped UR5 workcell with p = 30
+rotations and every IK solution, then searched rung by rung; with --collisions the lazy fcl
+checks are included. Run: ``python benchmarks/bench_motion.py [--collisions] [--counts 500 2545]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from curvslice.collision import CollisionScene
+from curvslice.kinematics import ROBOT_NAMES, fk_reference, ik, load_robot
+from curvslice.motion import circular_joints, ladder, plan_motion, shortest_path, step_times
+from curvslice.workcell import load_workcell
+
+THESIS_INIT_S = 86.0
+
+
+def dome_spiral(m: int, turns: float = 12.0, tilt_deg: float = 60.0, radius: float = 40.0):
+    s = np.linspace(0, 1, m)
+    pol = np.radians(tilt_deg) * (1 - s)
+    az = 2 * np.pi * turns * s
+    t = np.stack([np.sin(pol) * np.cos(az), np.sin(pol) * np.sin(az), np.cos(pol)], 1)
+    return radius * t, t
+
+
+def ik_throughput(n: int = 20_000) -> None:
+    for name in ROBOT_NAMES:
+        robot = load_robot(name)
+        q = np.random.default_rng(0).uniform(np.maximum(robot.lower, -np.pi), np.minimum(robot.upper, np.pi), (n, 6))
+        T = fk_reference(robot, q)
+        start = time.perf_counter()
+        _, ok = ik(robot, T)
+        dt = time.perf_counter() - start
+        print(f"IK {name:7s} {n / dt:10,.0f} poses/s  {ok.sum() / dt:12,.0f} solutions/s  ({ok.sum(1).mean():.2f} per pose)")
+
+
+def graph_times(counts: list[int], collisions: bool) -> None:
+    robot, cell = load_robot("ur5"), load_workcell("ur5")
+    lo, hi = cell.limits(robot)
+    circ = circular_joints(lo, hi)
+    scene = CollisionScene(robot, cell) if collisions else None
+    for m in counts:
+        c, t = dome_spiral(m, turns=12.0 * m / 2545)
+        dt = step_times(c, cell.linear_speed, cell.min_step_time)
+        start = time.perf_counter()
+        q, valid = ladder(robot, cell, c, t, cell.rotations)
+        built = time.perf_counter() - start
+        if scene is None:
+            path, _, _ = shortest_path(q, valid, dt, cell.max_joint_speed, circ)
+            total = time.perf_counter() - start
+            extra = f"segments {path.segment.max() + 1}"
+        else:
+            motion = plan_motion(robot, cell, c, t, dt, collides=scene.collisions)
+            total = time.perf_counter() - start - built  # plan_motion builds its own ladder
+            extra = f"segments {motion.segment.max() + 1}, fcl checks {motion.collision_checks:,} of {int(motion.solutions.sum()):,} nodes"
+        nodes = int(valid.sum())
+        print(f"graph m={m:6d}  nodes {nodes:9,d}  build {built:6.2f} s  build+search {total:6.2f} s  "
+              f"thesis/ours {THESIS_INIT_S * m / 2545 / total:5.1f}x  {extra}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--counts", type=int, nargs="+", default=[500, 1000, 2545, 5000])
+    parser.add_argument("--collisions", action="store_true", help="include lazy fcl collision checks")
+    args = parser.parse_args()
+    ik_throughput()
+    graph_times(args.counts, args.collisions)
+
+
+if __name__ == "__main__":
+    main()
