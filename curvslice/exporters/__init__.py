@@ -10,6 +10,7 @@ small helpers the writers share: argument checks, number formatting and file spl
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -153,3 +154,46 @@ def clean_outdir(outdir: Path, pattern: str) -> None:
     outdir.mkdir(parents=True, exist_ok=True)
     for old in outdir.glob(pattern):
         old.unlink()
+
+
+#: A joint-program line parser: the row's joint values and duration (None on a file's first row).
+MoveParser = Callable[[str], "tuple[list[float], float | None] | None"]
+
+
+def read_joint_rows(
+    files: list[tuple[Path, str, MoveParser]], comment: re.Pattern, output: Callable[[str], bool | None]
+) -> dict[str, np.ndarray]:
+    """Rows of joint programs written with ``t_start`` / ``segment`` bookkeeping comments.
+
+    ``files`` are (path, text, move parser) in run order; ``comment`` matches the bookkeeping
+    comments (groups: key, value); ``output`` returns the extruder state a line sets, or None.
+    A file's first row takes the file's ``t_start``; later rows add their durations to it.
+    """
+    q, t, seg, ext = [], [], [], []
+    for path, text, move in files:
+        t_file, rel = None, None
+        segment, state = 0, False
+        for line in text.splitlines():
+            if m := comment.match(line):
+                if m[1] == "t_start":
+                    t_file = float(m[2])
+                else:
+                    segment = int(m[2])
+            elif (switch := output(line)) is not None:
+                state = switch
+            elif (row := move(line)) is not None:
+                if t_file is None:
+                    raise CurvsliceError(f"{path}: motion before the 't_start' header; not a curvslice joint program")
+                rel = 0.0 if rel is None else rel + float(row[1])
+                q.append(row[0])
+                t.append(t_file + rel)
+                seg.append(segment)
+                ext.append(state)
+    if not q:
+        raise CurvsliceError("no joint motion found in the program files")
+    return {
+        "q": np.asarray(q, dtype=np.float64),
+        "t": np.asarray(t, dtype=np.float64),
+        "segment": np.asarray(seg, dtype=np.int64),
+        "extruding": np.asarray(ext, dtype=bool),
+    }

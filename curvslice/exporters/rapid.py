@@ -27,6 +27,7 @@ from curvslice.exporters import (
     joint_program,
     output_switches,
     parse_event_text,
+    read_joint_rows,
     relative_times,
 )
 from curvslice.gcode import Event
@@ -121,9 +122,8 @@ def write_rapid_joints(
     n = len(q)
     # stop after the untimed approach, where the next row switches the extruder or starts a new
     # segment, and where a module ends
-    stop = np.ones(n, bool)
-    stop[:-1] = (ext[1:] != ext[:-1]) | (seg[1:] != seg[:-1])
-    stop[0] = True
+    stop = output_switches(ext, seg)
+    stop[[0, -1]] = True
     parts = chunks(n, max_targets)
     paths = []
     for k, rows in enumerate(parts, start=1):
@@ -160,39 +160,30 @@ def read_rapid_joints(paths: Sequence[Path]) -> dict[str, np.ndarray]:
     ``paths`` may include the main module (its Load order is then used) or list the part
     modules in run order.
     """
-    q, t, seg, ext = [], [], [], []
+
+    def parser(path: Path, targets: dict[str, list[float]]):
+        def move(line: str) -> tuple[list[float], float | None] | None:
+            m = _MOVEABSJ.match(line)
+            if m is None:
+                return None
+            if m[1] not in targets:
+                raise CurvsliceError(f"{path}: MoveAbsJ to undeclared jointtarget {m[1]}")
+            return targets[m[1]], m[2]
+
+        return move
+
+    def output(line: str) -> bool | None:
+        m = _SETDO.match(line)
+        return None if m is None else m[2] == "1"
+
+    files = []
     for path in ordered_modules(paths):
         text = path.read_text()
         targets = {m[1]: [float(v) for v in m[2].split(",")] for m in _JOINTTARGET.finditer(text)}
-        t_file, rel = None, None
-        segment, state = 0, False
-        for line in text.splitlines():
-            if m := _COMMENT_NUMBER.match(line):
-                if m[1] == "t_start":
-                    t_file = float(m[2])
-                else:
-                    segment = int(m[2])
-            elif m := _SETDO.match(line):
-                state = m[2] == "1"
-            elif m := _MOVEABSJ.match(line):
-                if t_file is None:
-                    raise CurvsliceError(f"{path}: motion before the '! t_start' header; not a curvslice joint module")
-                if m[1] not in targets:
-                    raise CurvsliceError(f"{path}: MoveAbsJ to undeclared jointtarget {m[1]}")
-                rel = 0.0 if rel is None else rel + float(m[2])
-                q.append(targets[m[1]])
-                t.append(t_file + rel)
-                seg.append(segment)
-                ext.append(state)
-    if not q:
-        raise CurvsliceError("no MoveAbsJ motion found in the RAPID modules")
-    return {
-        "q": np.radians(np.asarray(q, dtype=np.float64)),
-        "t": np.asarray(t, dtype=np.float64),
-        "segment": np.asarray(seg, dtype=np.int64),
-        "extruding": np.asarray(ext, dtype=bool),
-    }
-
+        files.append((path, text, parser(path, targets)))
+    rows = read_joint_rows(files, _COMMENT_NUMBER, output)
+    rows["q"] = np.radians(rows["q"])
+    return rows
 
 def speed_words(robot: RobotPath, io: RapidIO) -> np.ndarray:
     """(N,) int: the speed shown on ``io.speed_outputs`` during each move (seed 004 §2.3.2).

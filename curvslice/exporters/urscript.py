@@ -28,6 +28,7 @@ from curvslice.exporters import (
     joint_program,
     output_switches,
     parse_event_text,
+    read_joint_rows,
     relative_times,
 )
 from curvslice.gcode import Event
@@ -127,34 +128,17 @@ def write_urscript_joints(
 
 def read_urscript_joints(paths: Sequence[Path]) -> dict[str, np.ndarray]:
     """Read files of :func:`write_urscript_joints` (in run order) back to ``q, t, segment, extruding``."""
-    q, t, seg, ext = [], [], [], []
-    for path in paths:
-        t_file, rel = None, None
-        segment, state = 0, False
-        for line in Path(path).read_text().splitlines():
-            if m := _COMMENT_NUMBER.match(line):
-                if m[1] == "t_start":
-                    t_file = float(m[2])
-                else:
-                    segment = int(m[2])
-            elif m := _DIGITAL_OUT.match(line):
-                state = m[2] == "True"
-            elif m := _JOINT_MOVE.match(line):
-                if t_file is None:
-                    raise CurvsliceError(f"{path}: motion before the '# t_start' header; not a curvslice joint program")
-                rel = 0.0 if rel is None else rel + float(m[3])
-                q.append([float(v) for v in m[2].split(",")])
-                t.append(t_file + rel)
-                seg.append(segment)
-                ext.append(state)
-    if not q:
-        raise CurvsliceError("no joint motion found in the URScript files")
-    return {
-        "q": np.asarray(q, dtype=np.float64),
-        "t": np.asarray(t, dtype=np.float64),
-        "segment": np.asarray(seg, dtype=np.int64),
-        "extruding": np.asarray(ext, dtype=bool),
-    }
+
+    def move(line: str) -> tuple[list[float], float | None] | None:
+        m = _JOINT_MOVE.match(line)
+        return None if m is None else ([float(v) for v in m[2].split(",")], m[3])
+
+    def output(line: str) -> bool | None:
+        m = _DIGITAL_OUT.match(line)
+        return None if m is None else m[2] == "True"
+
+    files = [(Path(p), Path(p).read_text(), move) for p in paths]
+    return read_joint_rows(files, _COMMENT_NUMBER, output)
 
 
 def write_urscript(
