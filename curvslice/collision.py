@@ -142,22 +142,41 @@ class CollisionScene:
         reach = (np.abs(R) @ self.halves[..., None])[..., 0]
         near = (np.abs(centre[:, a] - centre[:, b]) <= reach[:, a] + reach[:, b]).all(axis=-1)
         hit = np.zeros(len(q), bool)
+        # carried-vs-static pairs depend on the flange pose only, shared by all IK branches of a
+        # pose: test them once per distinct flange pose
+        L = len(self.links)
+        flange_only = (a >= L) & (a < L + len(self.carried)) & (b >= len(self.shapes) - len(self.static))
+        rows = np.flatnonzero(near[:, flange_only].any(axis=1))
+        if len(rows):
+            key = np.round(poses[rows, L, :3, :].reshape(len(rows), -1), 6)
+            _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+            pose_hit = self._test(poses, near, rows[first], np.flatnonzero(flange_only))
+            hit[rows] = pose_hit[inverse.ravel()]
+        self._test(poses, near, np.flatnonzero(~hit & near[:, ~flange_only].any(axis=1)),
+                   np.flatnonzero(~flange_only), out=hit)
+        return hit
+
+    def _test(self, poses: np.ndarray, near: np.ndarray, rows: np.ndarray, pairs: np.ndarray,
+              out: np.ndarray | None = None) -> np.ndarray:
+        """fcl on the near ``pairs`` of configurations ``rows``; True per row on first contact
+        (written into ``out[row]`` when given)."""
+        found = np.zeros(len(rows), bool)
         request = fcl.CollisionRequest()
-        n_static = len(self.static)
-        n_moving = len(self.shapes) - n_static
-        for i in np.flatnonzero(near.any(axis=1)):
+        n_moving = len(self.shapes) - len(self.static)
+        for r, i in enumerate(rows):
             placed = set()
-            for k in np.flatnonzero(near[i]):
-                pa, pb = int(a[k]), int(b[k])
+            for k in pairs[near[i, pairs]]:
+                pa, pb = self.pairs[k]
                 for body in (pa, pb):
                     if body < n_moving and body not in placed:
                         _set(self.shapes[body].obj, poses[i, body])
                         placed.add(body)
-                result = fcl.CollisionResult()
-                if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, result):
-                    hit[i] = True
+                if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, fcl.CollisionResult()):
+                    found[r] = True
                     break
-        return hit
+        if out is not None:
+            out[rows] |= found
+        return found
 
     def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
         """Names of all pairs in contact at one configuration (for reports and the verifier)."""

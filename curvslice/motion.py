@@ -192,12 +192,14 @@ def shortest_path(
     cost: str = "l1",
     weights: np.ndarray | None = None,
     node_ok: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    group: np.ndarray | None = None,
 ) -> tuple[LadderPath, np.ndarray, int]:
     """Multi-source shortest path through a ladder (m rungs, K nodes, 6 joints), rung by rung.
 
     ``q`` (m, K, 6), ``valid`` (m, K), ``dt`` (m-1,) seconds. ``node_ok(rungs, nodes)`` (optional)
     returns which of the given nodes are usable (e.g. collision-free); it is called lazily on path
-    nodes and then on whole rungs. Returns the path, the final validity mask, and how many nodes
+    nodes; where one is rejected, the other nodes of its ``group`` (labels (K,), e.g. the IK branch;
+    default: the whole rung) in that rung are asked too. Returns the path, the final validity mask, and how many nodes
     ``node_ok`` was asked about.
     """
     q = np.where(valid[..., None], q, np.nan)
@@ -205,7 +207,15 @@ def shortest_path(
     m, K = valid.shape
     best = np.full((m, K), np.inf)
     pred = np.full((m, K), -1)
-    edges = lambda i: sparse_edges(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)  # noqa: E731
+    cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def edges(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        # edges only lose endpoints between passes (_relax masks invalid ones), so keep them
+        if i not in cache:
+            ia, ib, w = sparse_edges(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)
+            cache[i] = (ia.astype(np.int32), ib.astype(np.int32), w)
+        return cache[i]
+
     _relax(valid, best, pred, 0, edges)
     checked = np.zeros((m, K), bool)
     asked = 0
@@ -223,7 +233,8 @@ def shortest_path(
         bad = rungs[~ok]
         if len(bad) == 0:
             continue
-        rr, kk = np.nonzero(valid[bad] & ~checked[bad])
+        same = np.ones((len(bad), K), bool) if group is None else group[None, :] == group[path.node[bad]][:, None]
+        rr, kk = np.nonzero(valid[bad] & ~checked[bad] & same)
         rr = bad[rr]
         if len(rr):
             ok = node_ok(rr, kk)
@@ -371,7 +382,9 @@ def plan_motion(
         q, valid = ladder(robot, cell, positions, normals, p)
         solutions = valid.sum(axis=1)
         node_ok = None if collides is None else (lambda r, k: ~collides(q[r, k]))  # noqa: E731
-        path, valid_final, asked = shortest_path(q, valid, dt, cell.max_joint_speed, circ, cost, weights, node_ok)
+        branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
+        path, valid_final, asked = shortest_path(q, valid, dt, cell.max_joint_speed, circ, cost, weights,
+                                                 node_ok, branch)
         asked_total += asked
         starts = np.flatnonzero(np.r_[False, np.diff(path.segment[path.segment >= 0]) != 0])
         if (len(starts) == 0 and (path.node >= 0).all()) or p * 2 > limit:
