@@ -238,18 +238,18 @@ def robot_path(program: GcodeProgram, cell: Cell) -> tuple[RobotPath, list[str]]
     if len(program) == 0:
         raise CurvsliceError("the G-code has no moves to convert")
     pos = program.positions + np.asarray(cell.offset, float)
-    warnings += check_workspace(pos, cell, [f"line {k}" for k in program.line])
+    warnings += check_workspace(pos, cell, [f"{program.source}, line {k}" for k in program.line])
     extrusion = program.extrusion
     no_feed = (program.feed <= 0) & ~program.home
     if np.any(no_feed & (extrusion > 0)):
         i = int(np.argmax(no_feed & (extrusion > 0)))
-        raise CurvsliceError(f"line {program.line[i]}: extruding move before any feed rate F was set")
+        raise CurvsliceError(f"{program.source}, line {program.line[i]}: extruding move before any feed rate F was set")
     speed = np.where(no_feed | program.home, cell.max_speed, program.feed / 60.0)
     fast = speed > cell.max_speed
     if fast.any():
         i = int(np.argmax(fast))
         warnings.append(
-            f"line {program.line[i]}: {speed[i]:g} mm/s exceeds the cell's max_speed {cell.max_speed:g} mm/s; "
+            f"{program.source}, line {program.line[i]}: {speed[i]:g} mm/s exceeds the cell's max_speed {cell.max_speed:g} mm/s; "
             f"{int(fast.sum())} moves capped"
         )
         speed = np.minimum(speed, cell.max_speed)

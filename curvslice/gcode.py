@@ -76,6 +76,7 @@ class GcodeProgram:
     layer: np.ndarray  # (N,) int32, from ;LAYER comments, else counted from Z of extruding moves
     line: np.ndarray  # (N,) int32 1-based source line
     start: np.ndarray  # (3,) position before the first move
+    source: str = "<gcode>"  # file name, for messages
     events: list[Event] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
 
@@ -265,6 +266,7 @@ def parse_gcode(
         layer=layers,
         line=np.array([r[12] for r in rows], dtype=np.int32),
         start=np.asarray(home, dtype=np.float64),
+        source=source,
         events=events,
         warnings=warnings,
     )

@@ -340,4 +340,4 @@ def test_convert_cli_targets_and_errors(tmp_path, monkeypatch, capsys):
     assert "line 3: move to (250.000, 10.000, 1.000) mm is outside the workspace" in capsys.readouterr().err
     args = ["convert", str(far), "--to", "rapid", "--cell", "huygens-irb120", "--out", str(out), "--warn-workspace"]
     assert run_cli(args, monkeypatch) == 0
-    assert "warning: line 3" in capsys.readouterr().err
+    assert "far.gcode, line 3: move to (250.000" in capsys.readouterr().err
