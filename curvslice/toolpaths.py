@@ -35,7 +35,7 @@ from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.flow import filament_length
 from curvslice.geodesic import boundary_distance
 
-#: Rings shorter than this many path widths are printed as a single dot at their centre.
+#: Rings shorter than this many path widths are printed as one short bead along their diameter.
 _DOT_RING = 4.0
 #: Sharp corners (turn above this angle, radians) are kept as samples when re-sampling.
 _CORNER = np.radians(30.0)
@@ -91,12 +91,24 @@ def _edge_ids(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     return inverse.reshape(faces.shape)
 
 
+@dataclass
+class Bands:
+    """Band components: ``node_face``/``node_band``/``comp`` per (triangle, band) node, and per
+    component its band index and largest distance value."""
+
+    node_face: np.ndarray
+    node_band: np.ndarray
+    comp: np.ndarray
+    top: np.ndarray
+    band: np.ndarray
+
+
 def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
-                  levels: np.ndarray) -> tuple[list[Ring], int]:
+                  levels: np.ndarray) -> tuple[list[Ring], Bands]:
     """Closed iso-contours of the per-vertex ``dist`` at ascending ``levels`` and band components.
 
-    Returns the rings and the number of band components. Band ``b`` holds the values in
-    ``[levels[b-1], levels[b])``; a value equal to a level counts as above it.
+    Band ``b`` holds the values in ``[levels[b-1], levels[b])``; a value equal to a level counts
+    as above it. Each ring knows the band component below and above it.
     """
     v = np.asarray(vertices, np.float64)
     f = np.asarray(faces, np.int64)
@@ -127,12 +139,20 @@ def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
     n2 = offset[f2[rep]] + bb - bmin[f2[rep]]
     graph = sp.coo_matrix((np.ones(len(n1)), (n1, n2)), shape=(n_nodes, n_nodes))
     n_comp, comp = connected_components(graph, directed=False)
+    node_face = np.repeat(np.arange(len(f)), width)
+    node_band = bmin[node_face] + (np.arange(n_nodes) - offset[node_face])
+    upper = np.r_[levels, np.inf][node_band]
+    comp_top = np.full(n_comp, -np.inf)
+    np.maximum.at(comp_top, comp, np.minimum(d[f[node_face]].max(axis=1), upper))
+    comp_band = np.zeros(n_comp, np.int64)
+    comp_band[comp] = node_band
+    bands = Bands(node_face, node_band, comp, comp_top, comp_band)
 
     # one oriented segment per (face, crossed level)
     crossings = bmax - bmin
     pf = np.repeat(np.arange(len(f)), crossings)
     if len(pf) == 0:
-        return [], n_comp
+        return [], bands
     pk = bmin[pf] + (np.arange(len(pf)) - np.repeat(np.cumsum(crossings) - crossings, crossings))
     above = d[f[pf]] >= levels[pk][:, None]
     nxt = np.roll(above, -1, axis=1)
@@ -172,7 +192,51 @@ def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
         if len(chain) >= 3:
             idx = np.asarray(chain)
             rings.append(Ring(float(levels[pk[seed]]), p_start[idx], int(below_node[seed]), int(above_node[seed])))
-    return rings, n_comp
+    return rings, bands
+
+
+def prune_islands(rings: list[Ring], comp_top: np.ndarray, width: float) -> list[Ring]:
+    """Drop rings around a peak that rises less than a quarter width above their level: along a
+    ridge these are islands of the distance field's noise, and printing one would lay two passes
+    less than half a width apart (an overlap larger than the gap it leaves)."""
+    bounding: dict[int, int] = {}
+    for r in rings:
+        bounding[r.below] = bounding.get(r.below, 0) + 1
+        bounding[r.above] = bounding.get(r.above, 0) + 1
+    return [r for r in rings if not (bounding[r.above] == 1 and comp_top[r.above] - r.level < 0.25 * width)]
+
+
+def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels: np.ndarray,
+               rings: list[Ring], bands: Bands, width: float) -> list[Ring]:
+    """One more contour in each peak that the regular rings leave uncovered.
+
+    A band component bounded by at most one ring, all below it, is covered up to half a width
+    above that ring (or not at all when no ring bounds it: a region thinner than a bead). If its
+    peak rises more than ``0.15·width`` beyond, a contour at the mid level ``(covered + top) / 2``
+    covers the rest, so peaks and regions thinner than a bead are printed too.
+    """
+    bounding: dict[int, list[Ring]] = {}
+    for r in rings:
+        bounding.setdefault(r.below, []).append(r)
+        bounding.setdefault(r.above, []).append(r)
+    low = np.r_[-np.inf, levels]
+    extra: list[Ring] = []
+    next_comp = len(bands.top)
+    for c in range(len(bands.top)):
+        b = int(bands.band[c])
+        around = bounding.get(c, [])
+        if len(around) > 1 or any(r.below == c for r in around) or (b > 0 and not around):
+            continue  # not a peak, or the peak of a pruned island
+        covered = low[b] + 0.5 * width if around else 0.0
+        if around and bands.top[c] - covered <= 0.15 * width:
+            continue  # (a region without any ring is always printed)
+        level = 0.5 * (covered + bands.top[c])
+        sub_faces = faces[bands.node_face[(bands.comp == c)]]
+        found, sub = contour_rings(vertices, sub_faces, dist, np.array([level]))
+        for r in found:
+            extra.append(Ring(r.level, r.points, c, next_comp + r.above))
+        next_comp += len(sub.top)
+    return extra
 
 
 # ----------------------------------------------------------------------------- ring geometry
@@ -314,8 +378,10 @@ class _Builder:
         order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
         for k in order:
             ring, s = rings[k], cuts[k]
-            if dots[k]:
-                arcs.append(ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))][None])
+            if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: its diameter)
+                centre = ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
+                far = ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]
+                arcs.append(centre[None] if n > 1 else np.vstack([centre, far]))
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
@@ -362,7 +428,13 @@ class _Builder:
             parts.append(_arc(ring, start + direction * cursor, s_at - direction * g / 2, direction))
             anchor = _point_at(closed, cum, s_at % total)
             tangent = direction * _tangent(ring, s_at % total, self.w)
-            parts.append(self.piece(child, anchor, tangent))
+            sub = self.piece(child, anchor, tangent)
+            leave = _point_at(closed, cum, (s_at + direction * g / 2) % total)
+            arrive = parts[-1][-1]
+            if (np.linalg.norm(sub[-1] - arrive) + np.linalg.norm(sub[0] - leave)
+                    < np.linalg.norm(sub[0] - arrive) + np.linalg.norm(sub[-1] - leave)):
+                sub = sub[::-1]  # the pairing of gap ends and spiral ends that does not cross
+            parts.append(sub)
             self.splices += 1
             cursor = o + g / 2
         parts.append(_arc(ring, start + direction * cursor, end, direction))
@@ -396,7 +468,9 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     finite = dist[np.isfinite(dist)]
     top = float(finite.max()) if len(finite) else 0.0
     levels = np.arange(0.5 * width, top, width)
-    rings, _ = contour_rings(v, f, dist, levels)
+    rings, bands = contour_rings(v, f, dist, levels)
+    rings = prune_islands(rings, bands.top, width)
+    rings += peak_rings(v, f, dist, levels, rings, bands, width)
     out = LayerPaths(pieces=[], rings=len(rings), closed_components=closed, max_distance=top)
     if not rings:
         return out
@@ -405,7 +479,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     cursor = np.asarray(start, float) if start is not None else rings[0].points[0]
     while remaining:
         # root: the band-0 component of the outermost ring nearest to the cursor
-        outer = [i for i in remaining if rings[i].level == levels[0]] or list(remaining)
+        outer = [i for i in remaining if rings[i].level == 0.5 * width] or list(remaining)
         first = min(outer, key=lambda i: _closest_s(rings[i], cursor)[1])
         root = rings[first].below
         tree, order = _contour_tree(rings, root)
@@ -538,7 +612,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             pid = np.repeat(np.arange(next_path, next_path + len(samples)), [len(s) for s in samples])
             next_path += len(samples)
             cursor = q[-1]
-            _, _, own_face = ori.closest_points(q, tri, own_tree)
+            q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer
             surface_normal = surface.face_normals[own_face]
             closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])  # the platform top
             dist = np.abs(q[:, 2])
@@ -547,11 +621,11 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
                 better = d_k < dist
                 closest[better], dist[better] = c_k[better], d_k[better]
             t = ori.accumulation_directions(q, closest, surface_normal)
-            t = ori.low_pass(t, pid, settings.max_angle)
             t = ori.limit_tilt(t, surface_normal, settings.max_tilt)
+            t = ori.low_pass(t, pid, settings.max_angle)
             pos, nrm, parent, frac = ori.slerp_subdivide(q, t, pid, settings.max_angle)
+            pos, _, _ = ori.closest_points(pos, tri, own_tree)  # crest subdivisions onto the layer
             nxt = np.minimum(parent + 1, len(q) - 1)
-            nrm = ori.limit_tilt(nrm, surface_normal[parent], settings.max_tilt)
             thick = np.clip(dist, settings.min_thickness * w, settings.max_thickness * w)
             row["thickness_clamped"] = int(np.sum((dist < settings.min_thickness * w) | (dist > settings.max_thickness * w)))
             out["positions"].append(pos)

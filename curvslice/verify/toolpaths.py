@@ -130,10 +130,15 @@ def checks(outdir: Path) -> list[Check] | None:
         coverage.append(cov)
         overlap.append(ovl)
         if mask.any() and len(mesh.faces):
-            tree = cKDTree(mesh.triangles_center)
-            dist, face = tree.query(pos[mask])
-            on_surface.append(float(np.max(np.abs(np.einsum("ij,ij->i", pos[mask] - mesh.triangles_center[face], mesh.face_normals[face])))))
-            facing.append(np.einsum("ij,ij->i", nrm[mask], mesh.face_normals[face]))
+            closest, dist, face = trimesh.proximity.closest_point(mesh, pos[mask])
+            on_surface.append(float(dist.max()))
+            # the layer normal at the closest point, interpolated from the vertex normals (a sliver
+            # triangle of the contoured layer may be flipped; the surface around it is not)
+            with np.errstate(all="ignore"):
+                bary = trimesh.triangles.points_to_barycentric(mesh.triangles[face], closest)
+            bary[~np.isfinite(bary).all(axis=1)] = 1.0 / 3.0  # degenerate triangle: its vertices' mean
+            normal = np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[mesh.faces[face]])
+            facing.append(np.einsum("ij,ij->i", nrm[mask], normal))
     if layer_files:
         cov = np.asarray(coverage)
         ovl = np.asarray(overlap)
@@ -148,7 +153,7 @@ def checks(outdir: Path) -> list[Check] | None:
         dots = np.concatenate(facing)
         unit = bool(np.all(np.abs(norm_len - 1) < 1e-6))
         add("orientation validity", unit and bool(np.all(dots > 0)),
-            f"{int(np.sum(dots <= 0))} samples point into printed side", "unit length and t·n_layer > 0")
-        add("samples on layers", max(on_surface) <= 0.25 * width, f"max off-surface {max(on_surface):.3f} mm",
-            "distance along the nearest face normal ≤ a quarter path width")
+            f"{int(np.sum(dots <= 0))} samples point into printed side", "unit length, t·n > 0 with n the layer normal at the closest point")
+        add("samples on layers", max(on_surface) <= 0.05 * width, f"max off-surface {max(on_surface):.3f} mm",
+            "distance to the layer ≤ 5% of the path width")
     return results

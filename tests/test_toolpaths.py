@@ -1,0 +1,154 @@
+"""Connected Fermat spirals on synthetic working surfaces (thesis §3.5.1, Zhao et al. 2016)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+import shapely.geometry as sg
+import trimesh
+from scipy.spatial import Delaunay
+from shapely.ops import unary_union
+
+from curvslice.flow import bead_area
+from curvslice.geodesic import boundary_distance
+from curvslice.toolpaths import contour_rings, extrusion_amounts, layer_paths, resample
+from curvslice.verify.toolpaths import layer_cover
+
+
+def polygon_mesh(poly, h: float, seed: int = 0) -> trimesh.Trimesh:
+    """Flat mesh (z = 0, normals +Z) of a shapely polygon: boundary at spacing h + jittered lattice."""
+    rng = np.random.default_rng(seed)
+    pts = []
+    parts = getattr(poly, "geoms", [poly])
+    for ring in [r for part in parts for r in (part.exterior, *part.interiors)]:
+        n = max(int(round(ring.length / h)), 8)
+        pts.append(np.array([ring.interpolate(s).coords[0] for s in np.linspace(0, ring.length, n, endpoint=False)]))
+    x0, y0, x1, y1 = poly.bounds
+    ii, jj = np.meshgrid(np.arange(x0, x1 + h, h), np.arange(y0, y1 + h, h * np.sqrt(3) / 2))
+    ii = ii + 0.5 * h * (np.round((jj - y0) / (h * np.sqrt(3) / 2)) % 2)
+    lattice = np.c_[ii.ravel(), jj.ravel()] + rng.uniform(-0.2 * h, 0.2 * h, (ii.size, 2))
+    lattice = lattice[shapely.contains_xy(poly.buffer(-0.5 * h), lattice[:, 0], lattice[:, 1])]
+    p = np.vstack(pts + [lattice])
+    tri = Delaunay(p).simplices
+    centre = p[tri].mean(axis=1)
+    tri = tri[shapely.contains_xy(poly, centre[:, 0], centre[:, 1])]
+    mesh = trimesh.Trimesh(np.c_[p, np.zeros(len(p))], tri, process=False)
+    if mesh.face_normals[:, 2].mean() < 0:
+        mesh.invert()
+    return mesh
+
+
+def _self_intersections(p: np.ndarray) -> int:
+    """Proper crossings between non-adjacent segments of a 2D polyline."""
+    a, b = p[:-1, :2], p[1:, :2]
+    n = len(a)
+    i, j = np.triu_indices(n, k=2)
+
+    def orient(p0, p1, q):
+        return np.sign((p1[:, 0] - p0[:, 0]) * (q[:, 1] - p0[:, 1]) - (p1[:, 1] - p0[:, 1]) * (q[:, 0] - p0[:, 0]))
+
+    cross = (orient(a[i], b[i], a[j]) * orient(a[i], b[i], b[j]) < 0) & (orient(a[j], b[j], a[i]) * orient(a[j], b[j], b[i]) < 0)
+    return int(cross.sum())
+
+
+def test_contour_rings_of_a_disc_are_circles_with_the_inside_on_the_left():
+    mesh = polygon_mesh(sg.Point(0, 0).buffer(12.0, 256), 0.5)
+    d = boundary_distance(mesh.vertices, mesh.faces)
+    levels = np.arange(0.5, d.max(), 1.0)
+    rings, _ = contour_rings(mesh.vertices, mesh.faces, d, levels)
+    rings.sort(key=lambda r: r.level)
+    assert len(rings) == len(levels)
+    for ring in [r for r in rings if r.level < 11.0]:  # radius 0.5 is smoothed by the heat method
+        r = np.linalg.norm(ring.points[:, :2], axis=1)
+        assert np.abs(r - (12.0 - ring.level)).max() < 0.1
+        x, y = ring.points[:, 0], ring.points[:, 1]
+        assert 0.5 * np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y) > 0  # counter-clockwise
+    # exact contour tree: consecutive rings share a band component
+    for outer, inner in zip(rings[:-1], rings[1:]):
+        assert outer.above == inner.below
+
+
+def test_flat_square_is_one_spiral_with_passes_one_width_apart():
+    width = 1.0
+    mesh = polygon_mesh(sg.box(0, 0, 30, 30), 0.6)
+    result = layer_paths(mesh, width)
+    assert len(result.pieces) == 1 and result.jumps == 0
+    path = resample(result.pieces[0], 1.0)
+    assert _self_intersections(path) == 0
+    # passes crossed by a ray from the centre to the mid-side farthest from the spiral's cut
+    centre = np.array([15.0, 15.0])
+    sides = np.array([[1, 0], [-1, 0], [0, 1], [0, -1]], float)
+    ray = sides[np.argmin(sides @ (path[0, :2] - centre))]
+    a, b = path[:-1, :2], path[1:, :2]
+    e = b - a
+    normal = np.array([-ray[1], ray[0]])
+    sa, sb = (a - centre) @ normal, (b - centre) @ normal
+    hit = (sa * sb < 0)
+    u = sa[hit] / (sa[hit] - sb[hit])
+    along = ((a[hit] + u[:, None] * e[hit]) - centre) @ ray
+    along = np.sort(along[along > 0])
+    gaps = np.diff(along)
+    assert len(along) >= 13
+    assert np.all(np.abs(gaps - width) <= 0.1 * width), gaps
+    assert 15.0 - along.max() == pytest.approx(0.5 * width, abs=0.1 * width)  # outer pass half a width in
+
+
+@pytest.mark.parametrize("name", ["disc", "annulus", "offset-annulus", "dumbbell", "saddle"])
+def test_connected_regions_give_one_piece_covering_the_layer(name):
+    width = 1.0
+    if name == "disc":
+        mesh = polygon_mesh(sg.Point(0, 0).buffer(15.0, 256), 0.6)
+    elif name == "annulus":
+        mesh = polygon_mesh(sg.Point(0, 0).buffer(18.0, 256).difference(sg.Point(0, 0).buffer(7.0, 128)), 0.6)
+    elif name == "offset-annulus":  # the contour tree branches where the rim and hole contours merge
+        mesh = polygon_mesh(sg.Point(0, 0).buffer(18.0, 256).difference(sg.Point(2, 0).buffer(7.0, 128)), 0.6)
+    elif name == "dumbbell":
+        mesh = polygon_mesh(unary_union([sg.Point(0, 0).buffer(10, 128), sg.Point(24, 0).buffer(8, 128),
+                                         sg.box(0, -2.5, 24, 2.5)]), 0.6)
+    else:
+        mesh = polygon_mesh(sg.box(-12, -12, 12, 12), 0.6)
+        v = mesh.vertices.copy()
+        v[:, 2] = (v[:, 0] ** 2 - v[:, 1] ** 2) / 40.0
+        mesh = trimesh.Trimesh(v, mesh.faces, process=False)
+    result = layer_paths(mesh, width)
+    assert len(result.pieces) == 1, f"{len(result.pieces)} pieces, {result.failed_splices} failed splices"
+    path = resample(result.pieces[0], 1.0)
+    assert np.linalg.norm(np.diff(path, axis=0), axis=1).max() <= 1.0 + 1e-9
+    if name not in ("saddle", "offset-annulus"):  # splices of merging contours may still cross once
+        assert _self_intersections(path) == 0
+    coverage, overlap = layer_cover(mesh, path, np.zeros(len(path), int), width)
+    assert coverage >= 0.95 and overlap <= 0.05, (coverage, overlap)
+    if name == "dumbbell":
+        assert result.splices >= 1  # the contour tree branches into the two lobes
+
+
+def test_separate_regions_are_separate_pieces_with_reported_travel():
+    mesh = polygon_mesh(unary_union([sg.Point(0, 0).buffer(6, 64), sg.Point(20, 0).buffer(6, 64)]), 0.6)
+    result = layer_paths(mesh, 1.0)
+    assert result.regions == 2 and len(result.pieces) == 2 and result.jumps == 1
+    assert result.travel == pytest.approx(np.linalg.norm(result.pieces[1][0] - result.pieces[0][-1]))
+    # the second region is entered at its outer contour next to where the first one ended
+    gap_to_region = np.linalg.norm(result.pieces[1][:, :2] - result.pieces[0][-1, :2], axis=1).min()
+    assert result.travel <= gap_to_region + 1.5
+
+
+def test_resample_keeps_polyline_and_corners():
+    poly = np.array([[0, 0, 0], [10, 0, 0], [10, 3.5, 0], [4, 3.5, 1]], float)
+    q = resample(poly, 1.0)
+    steps = np.linalg.norm(np.diff(q, axis=0), axis=1)
+    assert steps.max() <= 1.0 + 1e-9 and steps.min() > 0.5
+    for corner in poly:
+        assert np.min(np.linalg.norm(q - corner, axis=1)) < 1e-9
+
+
+def test_extrusion_is_volume_of_the_bead():
+    pos = np.array([[0, 0, 0], [2, 0, 0], [2, 3, 0], [10, 10, 0], [10, 11, 0]], float)
+    path = np.array([0, 0, 0, 1, 1])
+    thickness = np.full(5, 0.5)
+    e = extrusion_amounts(pos, path, thickness, 0.8, 1.75)
+    area_f = np.pi * 1.75**2 / 4
+    assert e[0] == 0 and e[3] == 0
+    assert e[1] == pytest.approx(2 * bead_area(0.8, 0.5) / area_f)
+    assert e[2] == pytest.approx(3 * bead_area(0.8, 0.5) / area_f)
+    assert e[4] == pytest.approx(1 * bead_area(0.8, 0.5) / area_f)
