@@ -4,7 +4,7 @@ The voxel set H̄ must *contain* the solid H so that working surfaces extracted 
 be trimmed back onto ∂H (§3.4.5). A voxel is occupied when
 
 * its centre is inside H (winding number of a +z ray, vectorized per column), or
-* the surface ∂H touches the closed voxel box (exact triangle-box separating-axis test).
+* the surface ∂H meets the open voxel box (exact triangle-box separating-axis test).
 
 Every point of H then lies in an occupied voxel: either its voxel's centre is inside, or the voxel
 holds points inside and outside H and therefore meets ∂H.
@@ -135,8 +135,9 @@ def _interior_winding(tri: np.ndarray, origin: np.ndarray, w: float, shape: tupl
     sign = np.sign(area2)  # +1: normal has +z component (ray exits the solid upwards)
     xy_lo = tri[:, :, :2].min(axis=1)
     xy_hi = tri[:, :, :2].max(axis=1)
-    i_lo = np.maximum(np.ceil((xy_lo - origin[:2]) / w), 0).astype(np.int64)
-    i_hi = np.minimum(np.floor((xy_hi - origin[:2]) / w), np.array([nx - 1, ny - 1])).astype(np.int64)
+    # widened column range: the exact edge functions below decide columns on a triangle's border
+    i_lo = np.maximum(np.ceil((xy_lo - origin[:2]) / w - 1e-6), 0).astype(np.int64)
+    i_hi = np.minimum(np.floor((xy_hi - origin[:2]) / w + 1e-6), np.array([nx - 1, ny - 1])).astype(np.int64)
     ok = (i_hi >= i_lo).all(axis=1)
     tri, sign, area2, i_lo, i_hi = tri[ok], sign[ok], area2[ok], i_lo[ok], i_hi[ok]
     counts = np.prod(i_hi - i_lo + 1, axis=1)
@@ -164,23 +165,24 @@ def _interior_winding(tri: np.ndarray, origin: np.ndarray, w: float, shape: tupl
 
 
 def _surface_voxels(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[int, int, int]) -> np.ndarray:
-    """Boolean grid: closed voxel boxes that the triangles touch (separating axis theorem,
-    Akenine-Möller 2001), with a relative tolerance of 1e-9 w in favour of touching."""
+    """Boolean grid: voxels whose open box the triangles meet (separating axis theorem,
+    Akenine-Möller 2001). Open boxes suffice for conservativeness: a voxel whose open box reaches
+    the interior of H either has its centre in H or is crossed by ∂H; a face of H lying exactly on
+    a voxel face does not mark the voxel beyond it."""
     grid = np.zeros(shape, bool)
-    h = w / 2 * (1 + 1e-9)
-    tol = 1e-9 * w
-    lo = np.floor((tri.min(axis=1) - origin + w / 2 - tol) / w).astype(np.int64)
-    hi = np.floor((tri.max(axis=1) - origin + w / 2 + tol) / w).astype(np.int64)
+    h = w / 2 * (1 - 1e-9)
+    lo = np.floor((tri.min(axis=1) - origin) / w + 0.5 - 1e-6).astype(np.int64)
+    hi = np.floor((tri.max(axis=1) - origin) / w + 0.5 + 1e-6).astype(np.int64)
     lo = np.maximum(lo, 0)
     hi = np.minimum(hi, np.array(shape) - 1)
     counts = np.prod(np.maximum(hi - lo + 1, 0), axis=1)
     for sl in _batches(counts, PAIR_BATCH):
         owner, cell = _expand_boxes(lo[sl], hi[sl])
         v = tri[sl][owner] - (origin + w * cell)[:, None, :]
+        hit = (v.min(axis=1) < h).all(axis=1) & (v.max(axis=1) > -h).all(axis=1)
         e = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 1], v[:, 0] - v[:, 2]], axis=1)
-        hit = np.ones(len(owner), bool)
         n = np.cross(e[:, 0], e[:, 1])
-        hit &= np.abs(np.einsum("ij,ij->i", n, v[:, 0])) <= h * np.abs(n).sum(axis=1) + tol * np.linalg.norm(n, axis=1)
+        hit &= np.abs(np.einsum("ij,ij->i", n, v[:, 0])) < h * np.abs(n).sum(axis=1)
         for ei in range(3):
             for ax in range(3):
                 axis = np.zeros((1, 3))
@@ -188,7 +190,8 @@ def _surface_voxels(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[
                 a = np.cross(np.broadcast_to(axis, e[:, ei].shape), e[:, ei])
                 proj = np.einsum("ijk,ik->ij", v, a)
                 r = h * np.abs(a).sum(axis=1)
-                hit &= (proj.min(axis=1) <= r) & (proj.max(axis=1) >= -r)
+                # a zero axis (edge parallel to a box axis) separates nothing
+                hit &= ((proj.min(axis=1) < r) & (proj.max(axis=1) > -r)) | (r == 0)
         c = cell[hit]
         grid[c[:, 0], c[:, 1], c[:, 2]] = True
     return grid
