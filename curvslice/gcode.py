@@ -165,7 +165,8 @@ def parse_gcode(
             continue
         unknown = [c for c, _, _ in commands if not _known(c)]
         if unknown:
-            fail(lineno, f"unknown command {unknown[0]}")
+            arcs = unknown[0] in ("G2", "G3")
+            fail(lineno, f"unknown command {unknown[0]}" + (" (arcs: turn off arc fitting in the slicer)" if arcs else ""))
             continue
         bad = [(c, k) for c, params, _ in commands for k in params if k not in _allowed(c)]
         if bad:

@@ -341,3 +341,25 @@ def test_convert_cli_targets_and_errors(tmp_path, monkeypatch, capsys):
     args = ["convert", str(far), "--to", "rapid", "--cell", "huygens-irb120", "--out", str(out), "--warn-workspace"]
     assert run_cli(args, monkeypatch) == 0
     assert "far.gcode, line 3: move to (250.000" in capsys.readouterr().err
+
+
+def test_extended_gcode_through_convert_keeps_normals(tmp_path):
+    """Extended G-code (thesis appendix) in, extended G-code out: positions, tilted normals and
+    filament survive the trip through tool quaternions."""
+    rng = np.random.default_rng(8)
+    n = 300
+    normals = rng.normal(size=(n, 3)) * [0.4, 0.4, 0.0] + [0, 0, 1]
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    path_id = np.repeat(np.arange(6), 50)
+    extrusion = np.where(np.diff(path_id, prepend=-1) != 0, 0.0, rng.uniform(0.01, 0.1, n))
+    src = dict(positions=rng.uniform(-50, 50, (n, 3)), normals=normals, extrusion=extrusion,
+               feed=np.full(n, 1200.0), path_id=path_id, layer=np.repeat(np.arange(1, 4), 100))
+    write_gcode6(tmp_path / "in.gcode", **src)
+    cell = load_cell("generic")
+    robot, _ = robot_path(parse_gcode((tmp_path / "in.gcode").read_text()), cell)
+    out = gcode6_samples(robot, cell.orientation)
+    assert np.abs(out["positions"] - src["positions"]).max() <= 5e-5
+    assert np.abs(out["normals"] - normals).max() <= 1e-6
+    assert np.allclose(out["extrusion"], extrusion, atol=2e-6)
+    assert np.array_equal(np.unique(out["path_id"], return_index=True)[1], np.arange(0, n, 50))
+    assert np.array_equal(out["layer"], src["layer"])
