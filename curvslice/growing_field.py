@@ -158,7 +158,7 @@ def _pca_split(pts: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def growing_field(grid: VoxelGrid, platform_vertices: np.ndarray, method: str = "pg-sp-gcfa",
-                  peeling: np.ndarray | None = None, delta_f: int = 3, eps: float = GROW_EPS,
+                  peeling: np.ndarray | None = None, delta_f: int = 1, eps: float = GROW_EPS,
                   progress=None) -> tuple[np.ndarray, GrowthStats]:
     """Compute the growing field G (int32 grid, layer index from 1, 0 = empty or missed).
 

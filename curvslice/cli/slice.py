@@ -111,7 +111,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g = p.add_argument_group("volume decomposition (§3.4)")
     g.add_argument("--voxel", type=float, default=1.0, help="voxel width w, mm")
     g.add_argument("--method", default="pg-sp-gcfa", choices=METHODS, help="growing-field method")
-    g.add_argument("--delta-f", type=int, default=3, help="Δf, peeling-field threshold step (Alg. 5)")
+    g.add_argument("--delta-f", type=int, default=1, help="Δf, peeling-field threshold step (Alg. 5)")
     g.add_argument("--eps", type=float, default=GROW_EPS, help="ε of the inside test, in voxel widths")
     g.add_argument("--peel-eps", type=float, default=PEEL_EPS, help="ε of the peeling shells, in voxel widths")
     g.add_argument("--memory-limit", type=float, default=8.0, help="refuse grids needing more than this, GiB")
