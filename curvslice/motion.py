@@ -94,8 +94,8 @@ def sparse_edges(
     weights: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The finite entries of :func:`edge_weights` as (ia, ib, w), found without the dense matrix:
-    candidates are the pairs whose first joint differs by at most ξΔt (a sorted-window search),
-    then every joint is tested exactly as in :func:`edge_weights` (same arithmetic, same result)."""
+    candidates are the pairs whose most discriminating joint differs by at most ξΔt (a sorted-window
+    search), then every joint is tested exactly as in :func:`edge_weights` (same arithmetic, same result)."""
     limit = max_speed * dt
     ka = np.flatnonzero(~np.isnan(qa[:, 0]))
     kb = np.flatnonzero(~np.isnan(qb[:, 0]))
@@ -105,13 +105,19 @@ def sparse_edges(
         w = edge_weights(qa, qb, dt, max_speed, circular, cost, weights)
         ia, ib = np.nonzero(np.isfinite(w))
         return ia, ib, w[ia, ib]
-    b0 = qb[kb, 0]
-    copies = (b0, b0 + TWO_PI, b0 - TWO_PI) if circular[0] else (b0,)
+    # window on the joint with the fewest target nodes within ξΔt of each other (joint 1 is
+    # useless when every rotation θ leaves the wrist in place)
+    v = np.sort(qb[kb], axis=0)
+    crowd = [(np.searchsorted(v[:, j], v[:, j] + limit, "right") - np.searchsorted(v[:, j], v[:, j] - limit, "left")).sum()
+             for j in range(v.shape[1])]
+    j0 = int(np.argmin(crowd))
+    b0 = qb[kb, j0]
+    copies = (b0, b0 + TWO_PI, b0 - TWO_PI) if circular[j0] else (b0,)
     values = np.concatenate(copies)
     owner = np.tile(np.arange(len(kb)), len(copies))
     order = np.argsort(values, kind="stable")
     sorted_values = values[order]
-    a0 = qa[ka, 0]
+    a0 = qa[ka, j0]
     lo = np.searchsorted(sorted_values, a0 - limit, "left")
     hi = np.searchsorted(sorted_values, a0 + limit, "right")
     counts = hi - lo
@@ -368,8 +374,8 @@ def plan_motion(
     """Joint trajectory for one waypoint sequence (a layer's tool-paths, in print order).
 
     ``dt`` (m-1,) are the step times; ``collides(q) -> bool`` marks poses in collision. p starts at
-    ``cell.rotations`` and doubles while the motion needs splits, up to ``max_rotations``
-    (default 4 p).
+    ``cell.rotations`` and doubles while the motion needs splits and doubling reduces them, up to
+    ``max_rotations`` (default 4 p); the ladder with the fewest breaks is kept.
     """
     positions = np.asarray(positions, float)
     normals = np.asarray(normals, float)
@@ -378,18 +384,25 @@ def plan_motion(
     p = cell.rotations
     limit = max_rotations or 4 * cell.rotations
     asked_total = 0
+    best = None
     while True:
         q, valid = ladder(robot, cell, positions, normals, p)
-        solutions = valid.sum(axis=1)
         node_ok = None if collides is None else (lambda r, k: ~collides(q[r, k]))  # noqa: E731
         branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
-        path, valid_final, asked = shortest_path(q, valid, dt, cell.max_joint_speed, circ, cost, weights,
-                                                 node_ok, branch)
+        path, _, asked = shortest_path(q, valid, dt, cell.max_joint_speed, circ, cost, weights, node_ok, branch)
         asked_total += asked
-        starts = np.flatnonzero(np.r_[False, np.diff(path.segment[path.segment >= 0]) != 0])
-        if (len(starts) == 0 and (path.node >= 0).all()) or p * 2 > limit:
+        # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
+        breaks = int((np.diff(path.segment[path.segment >= 0]) != 0).sum() + (path.node < 0).sum())
+        if best is None or breaks < best[0]:
+            best = (breaks, p, q, valid, path)
+        else:
+            break  # a denser ladder did not help: the breaks come from the path itself (§4.3.1)
+        if breaks == 0 or p * 2 > limit:
             break
         p *= 2
+    _, p, q, valid, path = best
+    solutions = valid.sum(axis=1)
+    starts = np.flatnonzero(np.r_[False, np.diff(path.segment[path.segment >= 0]) != 0])
     rows = np.flatnonzero(path.node >= 0)
     chosen = np.full((len(positions), 6), np.nan)
     chosen[rows] = q[rows, path.node[rows]]
