@@ -21,6 +21,8 @@ Implementation notes (choices the pseudo-code leaves open, each keeping the cons
 * Refinement (Algorithm 3) adds a subset to L̃ only when it is shadow-free and drops a single
   voxel that still creates shadows (the printed pseudo-code's last line is meant as the
   'else' branch). Tests are against C(C_c ∪ T ∪ L̃ ∪ L_sub) with L̃ growing as subsets are accepted.
+  A failing subset is first split into the voxels that can cause its shadows and the rest
+  (provably shadow-free, see :func:`_split`), then by PCA halves.
 * Shadow tests look only where the front can grow (``convex_front.newly_inside``): a voxel not
   inside C can only enter C' = C(C ∪ S) beyond a facet of C that S removes.
 * "Unprocessed" voxels counted as shadowed include the rest of L_next, so a voxel held back is
@@ -129,18 +131,19 @@ class _Front:
         accepted: list[np.ndarray] = []
         acc_hull = self.hull
         pending = np.ones(len(s_p), bool)  # S_p voxels not yet part of L̃
-        stack = list(_pca_split(self.pts, next_ids))[::-1]
+        stack = [next_ids]
         while stack:
             sub = stack.pop()
             self.stats.shadow_tests += 1
             test = grow(acc_hull, self.pts[sub])
             watch = s_p[pending & ~np.isin(s_p, sub)]
-            if not inside(test, self.pts[watch], self.eps).any():
+            hit = inside(test, self.pts[watch], self.eps)
+            if not hit.any():
                 accepted.append(sub)
                 acc_hull = test
                 pending &= ~np.isin(s_p, sub)
             elif len(sub) > 1:
-                stack.extend(list(_pca_split(self.pts, sub))[::-1])
+                stack.extend(_split(self.pts, sub, self.pts[watch[hit]], acc_hull, self.eps)[::-1])
         if not accepted:
             return np.zeros(0, dtype=np.int64), None
         chosen = np.concatenate(accepted)
@@ -148,13 +151,23 @@ class _Front:
         return chosen, acc_hull
 
 
-def _pca_split(pts: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Split voxels in two halves along the longest principal axis of their centres (§3.4.3)."""
+def _split(pts: np.ndarray, ids: np.ndarray, shadowed: np.ndarray, front: Hull, eps: float) -> list[np.ndarray]:
+    """Split a subset that creates shadows into parts tested in order (Algorithm 3, line 6).
+
+    A shadowed voxel s can only enter C(front ∪ S) if some voxel of S lies above a plane of the
+    front that s is beyond (or within ε of); the voxels above none of those planes ("rest") are
+    therefore shadow-free and go first, the others ("culprits") are split further. When that
+    separates nothing, split in halves along the longest principal axis (PCA) as in §3.4.3.
+    """
+    beyond = (shadowed @ front.normals.T + front.offsets > -eps).any(axis=0)
+    culprit = (pts[ids] @ front.normals[beyond].T + front.offsets[beyond] > 0).any(axis=1)
+    if culprit.any() and not culprit.all():
+        return [ids[~culprit], ids[culprit]]
     x = pts[ids] - pts[ids].mean(axis=0)
     _, vecs = np.linalg.eigh(x.T @ x)
     order = np.argsort(x @ vecs[:, -1], kind="stable")
     half = len(ids) // 2
-    return ids[order[:half]], ids[order[half:]]
+    return [ids[order[:half]], ids[order[half:]]]
 
 
 def growing_field(grid: VoxelGrid, platform_vertices: np.ndarray, method: str = "pg-sp-gcfa",
