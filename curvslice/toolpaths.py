@@ -27,7 +27,7 @@ from time import perf_counter
 import numpy as np
 import scipy.sparse as sp
 import trimesh
-from scipy.sparse.csgraph import connected_components
+from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from curvslice import orientation as ori
@@ -37,6 +37,9 @@ from curvslice.geodesic import boundary_distance
 
 #: Rings shorter than this many path widths are printed as one short bead along their diameter.
 _DOT_RING = 4.0
+#: A mesh vertex this many path widths from every path is open (a gap); half a width is the
+#: bead's edge, so hairlines between passes spaced a little over a width apart do not count.
+_GAP = 0.65
 #: Sharp corners (turn above this angle, radians) are kept as samples when re-sampling.
 _CORNER = np.radians(30.0)
 
@@ -70,6 +73,7 @@ class LayerPaths:
     splices: int = 0
     failed_splices: int = 0
     closed_components: int = 0
+    gap_passes: int = 0
     travel: float = 0.0
     max_distance: float = 0.0
     stats: dict[str, float] = field(default_factory=dict)
@@ -207,13 +211,15 @@ def prune_islands(rings: list[Ring], comp_top: np.ndarray, width: float) -> list
 
 
 def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels: np.ndarray,
-               rings: list[Ring], bands: Bands, width: float) -> list[Ring]:
-    """One more contour in each peak that the regular rings leave uncovered.
+               rings: list[Ring], bands: Bands, width: float) -> tuple[list[Ring], list[np.ndarray]]:
+    """One more contour in each peak that the regular rings leave uncovered, and centre lines of
+    slivers.
 
     A band component bounded by at most one ring, all below it, is covered up to half a width
     above that ring (or not at all when no ring bounds it: a region thinner than a bead). If its
     peak rises more than ``0.15·width`` beyond, a contour at the mid level ``(covered + top) / 2``
-    covers the rest, so peaks and regions thinner than a bead are printed too.
+    covers the rest, so peaks and regions thinner than a bead are printed too. A region less than
+    half a bead wide (peak below ``width/4``) gets one pass along its centre line instead of a loop.
     """
     bounding: dict[int, list[Ring]] = {}
     for r in rings:
@@ -221,6 +227,7 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
         bounding.setdefault(r.above, []).append(r)
     low = np.r_[-np.inf, levels]
     extra: list[Ring] = []
+    lines: list[np.ndarray] = []
     next_comp = len(bands.top)
     for c in range(len(bands.top)):
         b = int(bands.band[c])
@@ -232,11 +239,27 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
             continue  # (a region without any ring is always printed)
         level = 0.5 * (covered + bands.top[c])
         sub_faces = faces[bands.node_face[(bands.comp == c)]]
+        if not around and bands.top[c] < 0.25 * width:
+            lines.append(_centre_line(vertices[np.unique(sub_faces)], width))
+            continue
         found, sub = contour_rings(vertices, sub_faces, dist, np.array([level]))
         for r in found:
             extra.append(Ring(r.level, r.points, c, next_comp + r.above))
         next_comp += len(sub.top)
-    return extra
+    return extra, lines
+
+
+def _centre_line(points: np.ndarray, width: float) -> np.ndarray:
+    """Centre line of a thin region: its points averaged in bins of ``width/2`` along the main axis."""
+    centre = points.mean(axis=0)
+    axis = np.linalg.svd(points - centre, full_matrices=False)[2][0]
+    t = (points - centre) @ axis
+    bins = np.floor((t - t.min()) / (0.5 * width)).astype(np.int64)
+    counts = np.bincount(bins)
+    sums = np.stack([np.bincount(bins, weights=points[:, i]) for i in range(3)], axis=1)
+    line = sums[counts > 0] / counts[counts > 0, None]
+    ends = points[[np.argmin(t), np.argmax(t)]]
+    return np.vstack([ends[0], line, ends[1]]) if len(line) > 1 else ends
 
 
 # ----------------------------------------------------------------------------- ring geometry
@@ -452,17 +475,22 @@ class _Builder:
 
 def clean_surface(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     """Merge duplicate vertices and drop degenerate or repeated triangles (no other change)."""
-    m = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64), np.asarray(mesh.faces), process=True, validate=False)
+    m = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64).reshape(-1, 3), np.asarray(mesh.faces, np.int64).reshape(-1, 3),
+                        process=True, validate=False)
     m.update_faces(m.nondegenerate_faces(height=1e-9))
     m.update_faces(m.unique_faces())
     m.remove_unreferenced_vertices()
     return m
 
 
-def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None) -> LayerPaths:
-    """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1)."""
+def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
+                fill_gaps: bool = True) -> LayerPaths:
+    """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
+    :func:`gap_passes` through what they leave open when ``fill_gaps``."""
     surface = clean_surface(mesh)
     v, f = surface.vertices, surface.faces
+    if len(f) == 0:
+        return LayerPaths(pieces=[])
     dist = boundary_distance(v, f)
     closed = int(np.isnan(dist).any())
     finite = dist[np.isfinite(dist)]
@@ -470,9 +498,14 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     levels = np.arange(0.5 * width, top, width)
     rings, bands = contour_rings(v, f, dist, levels)
     rings = prune_islands(rings, bands.top, width)
-    rings += peak_rings(v, f, dist, levels, rings, bands, width)
+    extra, lines = peak_rings(v, f, dist, levels, rings, bands, width)
+    rings += extra
     out = LayerPaths(pieces=[], rings=len(rings), closed_components=closed, max_distance=top)
     if not rings:
+        fill = gap_passes(v, f, lines, width) if fill_gaps else []
+        out.pieces = _order_pieces(lines + fill, start)
+        out.regions, out.gap_passes = len(lines), len(fill)
+        out.travel = float(sum(np.linalg.norm(b[0] - a[-1]) for a, b in zip(out.pieces[:-1], out.pieces[1:])))
         return out
     remaining = set(range(len(rings)))
     builder = _Builder(_Tree(rings, {}, {}), width)
@@ -491,11 +524,55 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
         out.pieces.append(piece)
         out.regions += 1
         cursor = piece[-1]
-    out.pieces.extend(builder.extra_pieces)
+    out.pieces.extend(builder.extra_pieces + lines)
+    out.regions += len(lines)
+    fill = gap_passes(v, f, out.pieces, width) if fill_gaps else []
+    out.pieces.extend(fill)
+    out.gap_passes = len(fill)
     out.splices, out.failed_splices = builder.splices, builder.failed
     out.pieces = _order_pieces(out.pieces, start)
     out.travel = float(sum(np.linalg.norm(b[0] - a[-1]) for a, b in zip(out.pieces[:-1], out.pieces[1:])))
     return out
+
+
+def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray], width: float,
+               min_vertices: int = 4) -> list[np.ndarray]:
+    """Extra passes through what the spirals leave open: narrow strips (thinner than a bead, where
+    no contour exists) and the medial-axis gaps between contour families (thesis §3.7).
+
+    Vertices farther than ``_GAP`` widths from every path form connected patches; each patch at
+    least a width long gets one pass along its longest shortest path (two Dijkstra sweeps on its
+    mesh edges), which runs down the middle of a strip.
+    """
+    v = np.asarray(vertices, np.float64)
+    if not pieces:
+        open_v = np.ones(len(v), bool)
+    else:
+        dense = np.vstack([resample(p, 0.1 * width) if len(p) > 1 else p for p in pieces])
+        open_v = cKDTree(dense).query(v, distance_upper_bound=_GAP * width)[0] > _GAP * width
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    edges = np.unique(edges[open_v[edges].all(axis=1)], axis=0)
+    if len(edges) == 0:
+        return []
+    length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
+    graph = sp.coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(len(v), len(v))).tocsr()
+    graph = graph + graph.T
+    n_comp, label = connected_components(graph, directed=False)
+    sizes = np.bincount(label[open_v], minlength=n_comp)
+    passes = []
+    for c in np.nonzero(sizes >= min_vertices)[0]:
+        members = np.nonzero((label == c) & open_v)[0]
+        sub = graph[members][:, members]
+        far = np.argmax(dijkstra(sub, indices=0))
+        dist, pred = dijkstra(sub, indices=far, return_predecessors=True)
+        node = int(np.argmax(np.where(np.isfinite(dist), dist, -1)))
+        chain = [node]
+        while pred[node] >= 0:
+            node = int(pred[node])
+            chain.append(node)
+        if dist[chain[0]] >= width:
+            passes.append(v[members[chain]])
+    return passes
 
 
 def _order_pieces(pieces: list[np.ndarray], start: np.ndarray | None) -> list[np.ndarray]:
@@ -561,6 +638,7 @@ class ToolpathSettings:
     max_angle: float = float(np.radians(10.0))  #: low-pass / slerp threshold (§3.5.2)
     max_tilt: float = float(np.radians(75.0))  #: largest angle between orientation and layer normal
     window: int = 8  #: earlier layers searched for the closest point (Eq. 3.3)
+    fill_gaps: bool = True  #: extra passes through strips the spirals leave open (more jumps)
     min_thickness: float = 0.1  #: local layer thickness clamp, as a share of the path width
     max_thickness: float = 1.0
 
@@ -597,7 +675,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     for index, mesh in (progress(layer_iter, total=len(surfaces)) if progress else layer_iter):
         t0 = perf_counter()
         surface = clean_surface(mesh)
-        paths = layer_paths(surface, w, start=cursor)
+        paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps)
         samples = [resample(p, settings.step) for p in paths.pieces]
         samples = [s for s in samples if len(s) >= 2]
         t1 = perf_counter()
@@ -606,7 +684,8 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         row = {"layer": index, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
                "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
                "splices": paths.splices, "failed_splices": paths.failed_splices,
-               "closed_components": paths.closed_components, "samples": 0, "length_mm": 0.0}
+               "closed_components": paths.closed_components, "gap_passes": paths.gap_passes,
+               "samples": 0, "length_mm": 0.0}
         if samples:
             q = np.vstack(samples)
             pid = np.repeat(np.arange(next_path, next_path + len(samples)), [len(s) for s in samples])

@@ -111,9 +111,9 @@ def test_connected_regions_give_one_piece_covering_the_layer(name):
         v = mesh.vertices.copy()
         v[:, 2] = (v[:, 0] ** 2 - v[:, 1] ** 2) / 40.0
         mesh = trimesh.Trimesh(v, mesh.faces, process=False)
-    result = layer_paths(mesh, width)
-    assert len(result.pieces) == 1, f"{len(result.pieces)} pieces, {result.failed_splices} failed splices"
-    path = resample(result.pieces[0], 1.0)
+    spiral_only = layer_paths(mesh, width, fill_gaps=False)
+    assert len(spiral_only.pieces) == 1, f"{len(spiral_only.pieces)} pieces, {spiral_only.failed_splices} failed splices"
+    path = resample(spiral_only.pieces[0], 1.0)
     assert np.linalg.norm(np.diff(path, axis=0), axis=1).max() <= 1.0 + 1e-9
     if name not in ("saddle", "offset-annulus"):  # splices of merging contours may still cross once
         assert _self_intersections(path) == 0
@@ -125,13 +125,19 @@ def test_connected_regions_give_one_piece_covering_the_layer(name):
         # gap of Fermat spirals that the thesis names (§3.7); the bound is that strip's share - 3%
         expected = 1 - 2 * np.pi * 12.5 * 1.0 / (np.pi * (18**2 - 7**2)) - 0.03
     assert coverage >= expected and overlap <= 0.05, (coverage, overlap)
+    # gap passes only add pieces where the spiral left a gap, and never lose coverage
+    filled = layer_paths(mesh, width)
+    assert len(filled.pieces) == 1 + filled.gap_passes
+    samples = [resample(p, 1.0) for p in filled.pieces]
+    ids = np.repeat(np.arange(len(samples)), [len(q) for q in samples])
+    assert layer_cover(mesh, np.vstack(samples), ids, width)[0] >= coverage - 0.005
     if name == "dumbbell":
-        assert result.splices >= 1  # the contour tree branches into the two lobes
+        assert spiral_only.splices >= 1  # the contour tree branches into the two lobes
 
 
 def test_separate_regions_are_separate_pieces_with_reported_travel():
     mesh = polygon_mesh(unary_union([sg.Point(0, 0).buffer(6, 64), sg.Point(20, 0).buffer(6, 64)]), 0.6)
-    result = layer_paths(mesh, 1.0)
+    result = layer_paths(mesh, 1.0, fill_gaps=False)
     assert result.regions == 2 and len(result.pieces) == 2 and result.jumps == 1
     assert result.travel == pytest.approx(np.linalg.norm(result.pieces[1][0] - result.pieces[0][-1]))
     # the second region is entered at its outer contour next to where the first one ended
