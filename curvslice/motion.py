@@ -521,3 +521,27 @@ def plan_print(
         extruding=cat(out_ext, (0,)).astype(bool),
         layers=stats,
     )
+
+
+def motion_summary(motion: PrintMotion, waypoints: int) -> dict[str, object]:
+    """Figures of a planned print for ``report.json``: rows, IK solutions per waypoint, splits
+    (graph disconnections, Fig. 3.11b), winding splits, skipped waypoints, max joint step, p used."""
+    inside = motion.segment[1:] == motion.segment[:-1]
+    step = np.abs(np.diff(motion.q, axis=0)).max(axis=1) if len(motion.q) > 1 else np.zeros(0)
+    layers = motion.layers
+    return {
+        "waypoints": waypoints,
+        "rows": int(len(motion.q)),
+        "skipped": int(sum(s["skipped"] for s in layers)),
+        "segments": int(motion.segment.max() + 1) if len(motion.segment) else 0,
+        "splits": int(sum(len(s["splits"]) for s in layers)),
+        "winding_splits": int(sum(len(s["winding_splits"]) for s in layers)),
+        "ik_solutions_per_waypoint_mean": round(float(np.average([s["ik_solutions_mean"] for s in layers],
+                                                                 weights=[s["waypoints"] for s in layers])), 2) if layers else 0.0,
+        "ik_solutions_per_waypoint_min": int(min(s["ik_solutions_min"] for s in layers)) if layers else 0,
+        "max_joint_step_rad": round(float(step[inside].max()), 6) if inside.any() else 0.0,
+        "print_time_s": round(float(motion.t[-1] - motion.t[0]), 3) if len(motion.t) else 0.0,
+        "rotations_used": sorted({int(s["rotations"]) for s in layers}),
+        "collision_checks": int(sum(s["collision_checks"] for s in layers)),
+        "layers": layers,
+    }
