@@ -31,6 +31,7 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from curvslice import orientation as ori
+from curvslice.errors import CurvsliceError
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.flow import filament_length
 from curvslice.geodesic import boundary_distance
@@ -639,6 +640,15 @@ class ToolpathSettings:
     max_tilt: float = float(np.radians(75.0))  #: largest angle between orientation and layer normal
     window: int = 8  #: earlier layers searched for the closest point (Eq. 3.3)
     fill_gaps: bool = True  #: extra passes through strips the spirals leave open (more jumps)
+
+    def __post_init__(self) -> None:
+        for name in ("path_width", "step", "filament_diameter", "feed", "max_angle", "max_tilt"):
+            if not getattr(self, name) > 0:
+                raise CurvsliceError(f"tool-path setting {name} must be positive (got {getattr(self, name)})")
+        if not self.max_tilt < np.pi / 2:
+            raise CurvsliceError("the largest tilt from the layer normal must be below 90° (else the nozzle could point into printed material)")
+        if not 0 < self.min_thickness <= self.max_thickness <= 1.0:
+            raise CurvsliceError("layer thickness clamps need 0 < min_thickness <= max_thickness <= 1 (shares of the path width)")
     min_thickness: float = 0.1  #: local layer thickness clamp, as a share of the path width
     max_thickness: float = 1.0
 
@@ -663,7 +673,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     """Tool-paths, orientations and extrusion for working surfaces in print order (§3.5.1-3.5.2).
 
     Layer 1 stands on the platform top ``z = 0``; every later layer also on the ``window``
-    layers before it (Eq. 3.3). ``progress`` (an iterable wrapper such as tqdm) is optional.
+    layers before it (Eq. 3.3). ``progress`` is an optional tqdm-like object updated per layer.
     """
     w = settings.path_width
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness")}
@@ -671,8 +681,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     per_layer: list[dict[str, float]] = []
     seconds = {"spirals": 0.0, "orientation": 0.0}
     next_path, cursor = 0, None
-    layer_iter = enumerate(surfaces, start=1)
-    for index, mesh in (progress(layer_iter, total=len(surfaces)) if progress else layer_iter):
+    for index, mesh in enumerate(surfaces, start=1):
         t0 = perf_counter()
         surface = clean_surface(mesh)
         paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps)
@@ -722,6 +731,8 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         seconds["orientation"] += t2 - t1
         row["seconds"] = round(t2 - t0, 3)
         per_layer.append(row)
+        if progress is not None:
+            progress.update(1)
     cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("positions", "normals") else 0)) for k, v in out.items()}
     path = cat["path"].astype(np.int32)
     extrusion = extrusion_amounts(cat["positions"], path, cat["thickness"], w, settings.filament_diameter) if len(path) else np.zeros(0)

@@ -164,3 +164,34 @@ def test_extrusion_is_volume_of_the_bead():
     assert e[1] == pytest.approx(2 * bead_area(0.8, 0.5) / area_f)
     assert e[2] == pytest.approx(3 * bead_area(0.8, 0.5) / area_f)
     assert e[4] == pytest.approx(1 * bead_area(0.8, 0.5) / area_f)
+
+
+def test_stage_output_passes_the_verifier_and_corruption_is_caught(tmp_path):
+    """Stacked domes 0.9 mm apart: plan, save, verify; then break the files and verify again."""
+    from curvslice.toolpaths import ToolpathSettings, plan_toolpaths, save_toolpaths
+    from curvslice.verify.toolpaths import checks
+
+    base = polygon_mesh(sg.Point(0, 0).buffer(12.0, 128), 0.7)
+    layers = []
+    for k in range(1, 5):
+        v = base.vertices.copy()
+        v[:, 2] = 0.9 * k + 3.0 * np.exp(-(v[:, 0] ** 2 + v[:, 1] ** 2) / 60.0) * (k > 1) * (1 + 0.1 * k)
+        layers.append(trimesh.Trimesh(v, base.faces, process=False))
+    (tmp_path / "layers").mkdir()
+    for i, m in enumerate(layers, start=1):
+        m.export(tmp_path / "layers" / f"layer_{i:04d}.ply")
+    settings = ToolpathSettings(path_width=1.0)
+    tp = plan_toolpaths(layers, settings)
+    save_toolpaths(tmp_path, tp, settings)
+    results = {c.name: c for c in checks(tmp_path)}
+    assert all(c.passed for c in results.values()), [c for c in results.values() if not c.passed]
+    assert set(results) >= {"coverage", "overlap", "orientation continuity", "orientation validity", "gcode matches npz"}
+
+    data = dict(np.load(tmp_path / "toolpaths.npz"))
+    data["normals"] = -data["normals"]  # pointing into the printed side
+    data["positions"] = data["positions"] + [0, 0, 0.5]
+    np.savez(tmp_path / "toolpaths.npz", **data)
+    broken = {c.name: c for c in checks(tmp_path)}
+    assert not broken["orientation validity"].passed
+    assert not broken["gcode matches npz"].passed
+    assert not broken["samples on layers"].passed
