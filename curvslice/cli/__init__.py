@@ -15,7 +15,7 @@ from curvslice import __version__
 from curvslice.errors import CurvsliceError
 
 #: Sub-command modules of ``curvslice.cli``, in the order ``--help`` lists them.
-COMMANDS = ("slice", "verify", "convert", "level", "drape")
+COMMANDS = ("slice", "verify", "convert", "level", "drape", "view")
 
 
 def build_parser() -> argparse.ArgumentParser:
