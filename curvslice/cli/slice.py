@@ -116,6 +116,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--peel-eps", type=float, default=PEEL_EPS, help="ε of the peeling shells, in voxel widths")
     g.add_argument("--memory-limit", type=float, default=8.0, help="refuse grids needing more than this, GiB")
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
+    p.add_argument("--preview", action="store_true", help="also write preview.png (layers by print order, cut-away; tool-paths of one layer)")
+    p.add_argument("--preview-layer", type=int, help="layer whose tool-paths preview.png shows (default: the middle one)")
     p.set_defaults(run=run)
 
 
@@ -132,6 +134,10 @@ def run(args: argparse.Namespace) -> int:
             stage(ctx)
             ctx.report["stages"].append(name)
         ctx.report.setdefault("timings_s", {})["total"] = round(time.perf_counter() - start, 3)
+        if args.preview:
+            from curvslice.viz import preview_png, read_slice_folder  # matplotlib/meshcat only when asked
+
+            preview_png(read_slice_folder(tmp), tmp / "preview.png", args.preview_layer)
         (tmp / "report.json").write_text(json.dumps(ctx.report, indent=2, default=_jsonable))
     if not args.quiet:
         print(f"wrote {out}")
