@@ -69,7 +69,8 @@ def accessibility_violations(growing: np.ndarray, origin: np.ndarray, voxel_size
         dist = (x @ hull.equations[:, :3].T + hull.equations[:, 3]).max(axis=1)
         depth = -dist
         deepest = max(deepest, float(depth.max()))
-        bad.append(ijk[depth >= eps * voxel_size])
+        # 1e-6 w: a voxel at exactly ε depth must not flip between two qhull runs
+        bad.append(ijk[depth >= (eps + 1e-6) * voxel_size])
     found = np.vstack(bad) if bad else np.zeros((0, 3), int)
     return found, deepest
 
