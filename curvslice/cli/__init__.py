@@ -18,7 +18,9 @@ from curvslice.errors import CurvsliceError
 COMMANDS = ("slice", "verify", "convert", "level", "drape", "view")
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser; with ``only``, just that sub-command's module is imported (the
+    command modules pull in heavy libraries: pinocchio, meshcat, ezdxf…)."""
     parser = argparse.ArgumentParser(
         prog="curvslice",
         description="Support-free multi-axis 3D printing with robot arms (curved layers, "
@@ -26,14 +28,16 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"curvslice {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    for name in COMMANDS:
+    for name in COMMANDS if only is None else (only,):
         module = importlib.import_module(f"curvslice.cli.{name.replace('-', '_')}")
         module.add_parser(sub)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    first = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(first if first in COMMANDS else None)
     args = parser.parse_args(argv)
     try:
         return int(args.run(args) or 0)
