@@ -1,0 +1,268 @@
+"""Re-check the working surfaces (``layers/layer_XXXX.ply``) against ``solid.stl`` and ``field.npz``
+(thesis §3.4.5, Fig. 3.8; spacing histogram as in Fig. 3.18), independently of the code that made them:
+
+* one file per layer of G, and a non-empty surface for every layer whose voxels hold material of
+  H (an empty layer passes only if a lattice of samples finds less than :data:`EMPTY_MATERIAL`
+  voxel volumes of H in its voxels — a layer of voxels that only graze ∂H);
+* every layer vertex lies inside H — parity of a vertical ray through ∂H, vectorized over xy
+  buckets — or within :data:`TOLERANCE` of ∂H (trimesh's closest point);
+* every boundary vertex of a layer lies on ∂H within :data:`TOLERANCE`, or where the layer's
+  material ends inside H: next to a jump of the field (two face-adjacent voxels of H̄ whose G differ
+  by 2 or more, a missed voxel counting as G = 0);
+* consecutive layers do not intersect (exact triangle-triangle tests on AABB-overlapping pairs);
+* normals point towards later layers, and the spacing between consecutive layers (distance from
+  area-uniform samples of layer l to layer l−1, perpendicular feet only) is reported in voxel widths.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from curvslice.verify import Check
+
+STAGE = "layers"
+#: Distance to ∂H (voxel widths) within which a vertex counts as on the boundary (issue 3).
+TOLERANCE = 0.05
+#: Material (voxel volumes of H) below which a layer may have no surface.
+EMPTY_MATERIAL = 0.5
+#: Samples per voxel edge for the material estimate of an empty layer.
+MATERIAL_LATTICE = 4
+#: Share of spacing samples whose normals must agree with the print order.
+ORIENTATION_SHARE = 0.95
+#: Plausible mean layer spacing (voxel widths); the thesis measured about 1.25 w (Fig. 3.18).
+SPACING_RANGE = (0.5, 2.5)
+SAMPLES_PER_W2 = 1.0
+MAX_SAMPLES = 2000
+BATCH = 200_000
+
+
+def _boundary_vertices(mesh: trimesh.Trimesh) -> np.ndarray:
+    edges = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    uniq, count = np.unique(edges, axis=0, return_counts=True)
+    return np.unique(uniq[count == 1])
+
+
+def _xy_buckets(tri: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
+    """CSR lists of the triangles whose xy bounding box overlaps each square bucket."""
+    lo_xy = tri[:, :, :2].min(axis=(0, 1))
+    b_lo = np.floor((tri[:, :, :2].min(axis=1) - lo_xy) / size).astype(np.int64)
+    b_hi = np.floor((tri[:, :, :2].max(axis=1) - lo_xy) / size).astype(np.int64)
+    dims = (int(b_hi[:, 0].max()) + 1, int(b_hi[:, 1].max()) + 1)
+    span = b_hi - b_lo + 1
+    owner = np.repeat(np.arange(len(tri)), span[:, 0] * span[:, 1])
+    local = np.arange(len(owner)) - np.repeat(np.cumsum(span[:, 0] * span[:, 1]) - span[:, 0] * span[:, 1],
+                                               span[:, 0] * span[:, 1])
+    bx = b_lo[owner, 0] + local // span[owner, 1]
+    by = b_lo[owner, 1] + local % span[owner, 1]
+    bucket = bx * dims[1] + by
+    order = np.argsort(bucket, kind="stable")
+    starts = np.searchsorted(bucket[order], np.arange(dims[0] * dims[1] + 1))
+    return owner[order], starts, lo_xy, dims
+
+
+def inside_by_ray_parity(solid: trimesh.Trimesh, points: np.ndarray, seed: int = 0) -> np.ndarray:
+    """Point-in-solid by the parity of +z ray crossings (xy jittered by 1e-7 of the model size,
+    seeded, so rays miss mesh edges)."""
+    tri = np.asarray(solid.triangles, float)
+    scale = float(np.ptp(tri.reshape(-1, 3), axis=0).max())
+    xy_ext = np.ptp(tri[:, :, :2], axis=1).max(axis=1)
+    size = max(2.0 * float(np.median(xy_ext)), 1e-3 * scale)
+    members, starts, lo_xy, dims = _xy_buckets(tri, size)
+    rng = np.random.default_rng(seed)
+    p = np.asarray(points, float) + np.c_[rng.uniform(-1e-7, 1e-7, (len(points), 2)) * scale, np.zeros(len(points))]
+    cell = np.floor((p[:, :2] - lo_xy) / size).astype(np.int64)
+    ok = (cell >= 0).all(axis=1) & (cell[:, 0] < dims[0]) & (cell[:, 1] < dims[1])
+    bucket = np.where(ok, cell[:, 0] * dims[1] + cell[:, 1], 0)
+    counts = np.where(ok, starts[bucket + 1] - starts[bucket], 0)
+    parity = np.zeros(len(p), np.int64)
+    chunk_end = np.searchsorted(np.cumsum(counts), np.arange(BATCH, counts.sum() + BATCH, BATCH))
+    begin = 0
+    for end in np.unique(np.r_[chunk_end, len(p)]):
+        if end <= begin:
+            continue
+        idx = np.arange(begin, end)
+        c = counts[idx]
+        own = np.repeat(idx, c)
+        pos = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c) + np.repeat(starts[bucket[idx]], c)
+        t = tri[members[pos]]
+        q = p[own]
+        a, b, cc = t[:, 0], t[:, 1], t[:, 2]
+        e0 = (b[:, 0] - a[:, 0]) * (q[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (q[:, 0] - a[:, 0])
+        e1 = (cc[:, 0] - b[:, 0]) * (q[:, 1] - b[:, 1]) - (cc[:, 1] - b[:, 1]) * (q[:, 0] - b[:, 0])
+        e2 = (a[:, 0] - cc[:, 0]) * (q[:, 1] - cc[:, 1]) - (a[:, 1] - cc[:, 1]) * (q[:, 0] - cc[:, 0])
+        hit = ((e0 > 0) & (e1 > 0) & (e2 > 0)) | ((e0 < 0) & (e1 < 0) & (e2 < 0))
+        area = e0 + e1 + e2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z = (e1 * a[:, 2] + e2 * b[:, 2] + e0 * cc[:, 2]) / area
+        above = hit & (z > q[:, 2])
+        parity += np.bincount(own[above] - 0, minlength=len(p))[: len(p)]
+        begin = end
+    return parity % 2 == 1
+
+
+def _segment_hits_triangle(p0: np.ndarray, p1: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Möller-Trumbore, row by row: does the closed segment p0-p1 cross the triangle?"""
+    e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+    d = p1 - p0
+    h = np.cross(d, e2)
+    a = np.einsum("ij,ij->i", e1, h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = 1.0 / a
+        s = p0 - tri[:, 0]
+        u = f * np.einsum("ij,ij->i", s, h)
+        q = np.cross(s, e1)
+        v = f * np.einsum("ij,ij->i", d, q)
+        t = f * np.einsum("ij,ij->i", e2, q)
+        return (np.abs(a) > 1e-15) & (u >= 0) & (v >= 0) & (u + v <= 1) & (t >= 0) & (t <= 1)
+
+
+def crossing_pairs(a: trimesh.Trimesh, b: trimesh.Trimesh) -> int:
+    """Number of intersecting triangle pairs between two meshes (exact edge-triangle tests on
+    pairs whose bounding boxes overlap)."""
+    if len(a.faces) == 0 or len(b.faces) == 0:
+        return 0
+    ta, tb = np.asarray(a.triangles, float), np.asarray(b.triangles, float)
+    ca, cb = ta.mean(axis=1), tb.mean(axis=1)
+    ra = np.linalg.norm(ta - ca[:, None], axis=2).max()
+    rb = np.linalg.norm(tb - cb[:, None], axis=2).max()
+    tree = cKDTree(cb)
+    hits = tree.query_ball_point(ca, ra + rb)
+    counts = np.fromiter(map(len, hits), np.int64, len(hits))
+    if counts.sum() == 0:
+        return 0
+    ia = np.repeat(np.arange(len(ta)), counts)
+    ib = np.concatenate([np.asarray(h, np.int64) for h in hits if len(h)])
+    lo_a, hi_a, lo_b, hi_b = ta.min(axis=1), ta.max(axis=1), tb.min(axis=1), tb.max(axis=1)
+    keep = ((lo_a[ia] <= hi_b[ib]) & (lo_b[ib] <= hi_a[ia])).all(axis=1)
+    ia, ib = ia[keep], ib[keep]
+    x = np.zeros(len(ia), bool)
+    for k in range(3):
+        x |= _segment_hits_triangle(ta[ia, k], ta[ia, (k + 1) % 3], tb[ib])
+        x |= _segment_hits_triangle(tb[ib, k], tb[ib, (k + 1) % 3], ta[ia])
+    return int(x.sum())
+
+
+def layer_spacing(earlier: trimesh.Trimesh, later: trimesh.Trimesh, voxel_size: float,
+                  seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Distances (mm) from area-uniform samples of ``later`` to ``earlier`` where the foot is
+    perpendicular, and for each whether both layers' normals point from earlier to later."""
+    n = int(np.clip(later.area * SAMPLES_PER_W2 / voxel_size**2, 1, MAX_SAMPLES))
+    pts, fid = trimesh.sample.sample_surface(later, n, seed=seed)
+    foot, dist, tid = trimesh.proximity.closest_point(earlier, pts)
+    vec = pts - foot
+    n_early = earlier.face_normals[tid]
+    perpendicular = np.abs(np.einsum("ij,ij->i", vec, n_early)) >= 0.99 * dist
+    agree = (np.einsum("ij,ij->i", vec, n_early) > 0) & (np.einsum("ij,ij->i", vec, later.face_normals[fid]) > 0)
+    sel = perpendicular & (dist > 0)
+    return dist[sel], agree[sel]
+
+
+def layer_material(solid: trimesh.Trimesh, growing: np.ndarray, origin: np.ndarray, voxel_size: float,
+                   layer: int) -> float:
+    """Volume of H inside the voxels of ``layer`` (in voxel volumes), from a lattice of samples."""
+    ijk = np.argwhere(growing == layer)
+    if len(ijk) == 0:
+        return 0.0
+    k = MATERIAL_LATTICE
+    offs = (np.stack(np.meshgrid(*[np.arange(k)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / k - 0.5
+    pts = (origin + voxel_size * (ijk[:, None, :] + offs[None])).reshape(-1, 3)
+    return float(inside_by_ray_parity(solid, pts).sum()) / len(offs)
+
+
+def jump_voxels(growing: np.ndarray, occupied: np.ndarray) -> np.ndarray:
+    """Voxels of H̄ with a face neighbour in H̄ whose G differs by 2 or more (missed voxels: G = 0)."""
+    out = np.zeros(growing.shape, bool)
+    g = growing.astype(np.int64)
+    for axis in range(3):
+        a = [slice(None)] * 3
+        b = [slice(None)] * 3
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        jump = occupied[tuple(a)] & occupied[tuple(b)] & (np.abs(g[tuple(a)] - g[tuple(b)]) >= 2)
+        out[tuple(a)] |= jump
+        out[tuple(b)] |= jump
+    return out
+
+
+def checks(outdir: Path) -> list[Check] | None:
+    folder = Path(outdir) / "layers"
+    files = sorted(folder.glob("layer_*.ply"))
+    if not folder.is_dir():
+        return None
+    results: list[Check] = []
+    solid_path, field_path = Path(outdir) / "solid.stl", Path(outdir) / "field.npz"
+    if not solid_path.exists() or not field_path.exists():
+        return [Check(STAGE, "inputs", False, "missing", "layers need solid.stl and field.npz beside them")]
+    with np.load(field_path) as f:
+        growing, w, origin = f["growing"], float(f["voxel_size"]), np.asarray(f["origin"], float)
+        occupied = f["occupied"] if "occupied" in f else growing > 0
+    report = Path(outdir) / "report.json"
+    step = 1.0
+    if report.exists():
+        height = json.loads(report.read_text()).get("layers", {}).get("layer_height_mm")
+        step = float(height) / w if height else 1.0
+    expected = int(np.ceil(int(growing.max()) / step - 1e-9))
+    solid = trimesh.load(solid_path, force="mesh")
+    layers = [trimesh.load(p, force="mesh", process=False) for p in files]
+    results.append(Check(STAGE, "one file per layer", len(files) == expected,
+                         f"{len(files)} of {expected}", "" if len(files) == expected else "layers missing"))
+    empty = [i + 1 for i, m in enumerate(layers) if len(m.faces) == 0]
+    material = {layer: layer_material(solid, growing, origin, w, layer) for layer in empty} if step == 1.0 else {}
+    lost = [layer for layer in empty if material.get(layer, np.inf) >= EMPTY_MATERIAL]
+    detail = ", ".join(f"{layer}: {material.get(layer, float('nan')):.2f} voxels of material" for layer in empty[:10])
+    results.append(Check(STAGE, "a surface for every layer with material", not lost,
+                         f"{len(empty)} empty, {len(lost)} with material", detail))
+    live = [m for m in layers if len(m.faces)]
+    if not live:
+        return results
+
+    verts = np.concatenate([m.vertices for m in live])
+    outside = ~inside_by_ray_parity(solid, verts)
+    worst = 0.0
+    if outside.any():
+        worst = float(trimesh.proximity.closest_point(solid, verts[outside])[1].max()) / w
+    results.append(Check(STAGE, "vertices inside H", worst <= TOLERANCE, f"max {worst:.3g} w outside",
+                         f"{int(outside.sum())} of {len(verts)} vertices outside by parity (tolerance {TOLERANCE} w)"))
+
+    bnd = np.concatenate([m.vertices[_boundary_vertices(m)] for m in live])
+    bd = trimesh.proximity.closest_point(solid, bnd)[1] / w if len(bnd) else np.zeros(0)
+    interior = bnd[bd > TOLERANCE]
+    near_jump = np.zeros(len(interior), bool)
+    if len(interior):
+        jumps = np.pad(jump_voxels(growing, occupied), 1)
+        base = np.rint((interior - origin) / w).astype(np.int64) + 1
+        for d in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
+            ijk = np.clip(base + d, 0, np.array(jumps.shape) - 1)
+            near_jump |= jumps[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    unexplained = int((~near_jump).sum())
+    results.append(Check(STAGE, "boundary on ∂H or at a field jump", unexplained == 0,
+                         f"{len(bnd) - len(interior)} on ∂H, {int(near_jump.sum())} at jumps, {unexplained} else",
+                         f"on ∂H within {TOLERANCE} w: max {bd[bd <= TOLERANCE].max(initial=0):.2g} w"))
+
+    crossings = [crossing_pairs(layers[i], layers[i + 1]) for i in range(len(layers) - 1)]
+    bad = [i + 1 for i, c in enumerate(crossings) if c]
+    results.append(Check(STAGE, "consecutive layers do not cross", not bad, f"{sum(crossings)} pairs",
+                         f"between layers {bad[:10]} and the next" if bad else ""))
+
+    dists, agree = [], []
+    for i in range(1, len(layers)):
+        if len(layers[i - 1].faces) and len(layers[i].faces):
+            d, a = layer_spacing(layers[i - 1], layers[i], w, seed=i)
+            dists.append(d)
+            agree.append(a)
+    if dists:
+        d = np.concatenate(dists) / w
+        a = np.concatenate(agree)
+        share = float(a.mean()) if len(a) else 0.0
+        results.append(Check(STAGE, "normals towards later layers", share >= ORIENTATION_SHARE,
+                             f"{100 * share:.1f}%", f"of {len(a)} spacing samples"))
+        hist, edges = np.histogram(d, bins=np.r_[np.arange(0, 3.01, 0.25), np.inf])
+        shares = ", ".join(f"{lo:g}-{hi:g}: {100 * h / len(d):.1f}%" for lo, hi, h in zip(edges[:-1], edges[1:], hist))
+        mean = float(d.mean())
+        results.append(Check(STAGE, "layer spacing", SPACING_RANGE[0] <= mean <= SPACING_RANGE[1],
+                             f"mean {mean:.3f} w, std {d.std():.3f} w", f"histogram (w): {shares}"))
+    return results

@@ -1,0 +1,634 @@
+"""Working surfaces: curved layers extracted from the growing field G and trimmed by H (thesis §3.4.5,
+Fig. 3.8, Eq. 3.2).
+
+For every layer l (print order) the surface S_l is built in three steps:
+
+1. **Continued field.** G is an integer per voxel of H̄ (0 = empty or missed). Empty voxels within two
+   voxels of H̄ (and missed voxels) receive one more growth step, G = 1 + min over their 18 AM-stable
+   neighbours (Definition 1, the growth rule of Alg. 1 applied to empty space); the platform below
+   z = 0 is layer 0. Every isosurface then reaches past H̄ ⊇ H, so its untrimmed boundary lies
+   outside H (§3.4.5: "as long as ∂S* is always outside H"). On an edge leaving H̄ a crossing is
+   kept in the empty voxel's half, so the continuation never bends layers inside H.
+2. **Dual contouring** (Ju et al. 2002, the thesis's [52]) at the isovalue of layer l: Hermite data
+   from linear interpolation on the narrow band of grid edges whose end values bracket the isovalue,
+   normals by central finite differences of G; one vertex per sign-changing cell from the QEF
+   (truncated pseudo-inverse around the mass point, clamped to its cell); one quad per crossing
+   edge, split along its shorter diagonal and oriented along +∇G (towards later layers).
+3. **Trimming by H**: vertices are classified by an exact signed distance to ∂H (closest triangle
+   feature + angle-weighted pseudonormal, Bærentzen & Aanæs 2005; voxels untouched by ∂H decide in
+   bulk), triangles are clipped along the zero set, and every new boundary vertex is placed on ∂H by
+   regula falsi on the signed distance, so ∂S_l ⊂ ∂H.
+
+**Isovalues (Eq. 3.2).** g_i = (i − ½)·s in units of G, with s = d / w G-steps per printed layer
+(d = layer height, default w, so g_i = i − ½). The thesis prints the factor as w/d, which would give
+*more* surfaces for thicker layers; d/w matches the layer count ⌈max G / d⌉ of the same paragraph.
+Layer l's working surface is g_{l+1} = l·s + ½: the interface between layer l and the layers after
+it, i.e. the top of layer l, where the nozzle rides while depositing it (the authors' code also
+contours just above each layer, at i + 0.001). g_1 = ½ is the platform contact z = 0, not a layer
+(every shared model touches z = 0 only at points).
+
+**Empty layers.** Every layer with voxels must yield a surface. The top of the last layer (and of
+any layer that nothing covers) is the skin ∂H itself, so its interface lies outside H and trims to
+nothing; such a layer is extracted at the first of the lower levels l·s + ½ + s·``FALLBACK_OFFSETS``
+whose trimmed surface is not empty (still above layer l − 1's level), and its mesh metadata says so.
+"""
+
+from __future__ import annotations
+
+import itertools
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+from scipy import ndimage
+from scipy.spatial import cKDTree
+
+from curvslice.errors import CurvsliceError
+from curvslice.voxelize import _interior_winding, _surface_voxels
+
+#: Voxels of padding around the field grid (continuation ring, gradient stencil, platform rows).
+PAD = 3
+#: Level offsets (in G-steps per layer) tried in turn when a layer's surface trims to nothing.
+FALLBACK_OFFSETS = (0.0, -0.25, -0.5, -0.75, -0.9, -0.97, -0.99)
+#: Relative eigenvalue cut of the QEF's truncated pseudo-inverse (Ju et al. 2002 use 0.1).
+QEF_TRUNCATION = 0.3
+#: Vertices within this distance of ∂H (in voxel widths) are snapped onto ∂H (no slivers).
+SNAP = 0.01
+#: Regula falsi stops within this distance of ∂H (voxel widths); the vertex then moves onto ∂H.
+ROOT_TOL = 0.01
+ROOT_ITERATIONS = 40
+
+# ----------------------------------------------------------------------------------------------
+# 1. the continued field
+
+
+@dataclass(frozen=True)
+class ContinuedField:
+    """G continued one growth step around H̄ on a grid padded by :data:`PAD` voxels.
+
+    ``values`` float (NaN where unknown), ``gradient`` (…, 3) per mm, ``domain`` nodes usable as
+    cell corners, ``solid_nodes`` the voxels of H̄, ``grown`` those with G > 0, ``origin`` the centre
+    of padded node (0,0,0).
+    """
+
+    values: np.ndarray
+    gradient: np.ndarray
+    domain: np.ndarray
+    solid_nodes: np.ndarray
+    grown: np.ndarray
+    origin: np.ndarray
+    voxel_size: float
+
+
+def _one_sided_gradient(values: np.ndarray) -> np.ndarray:
+    """Finite differences per voxel step: central where both neighbours are known, one-sided where
+    one is, 0 where none is (NaN marks unknown)."""
+    grads = []
+    for axis in range(values.ndim):
+        fwd = np.full(values.shape, np.nan)
+        bwd = np.full(values.shape, np.nan)
+        lo = [slice(None)] * values.ndim
+        hi = [slice(None)] * values.ndim
+        lo[axis], hi[axis] = slice(0, -1), slice(1, None)
+        fwd[tuple(lo)] = values[tuple(hi)] - values[tuple(lo)]
+        bwd[tuple(hi)] = fwd[tuple(lo)]
+        both = np.stack([fwd, bwd])
+        n = np.isfinite(both).sum(axis=0)
+        grads.append(np.where(n > 0, np.nansum(both, axis=0) / np.maximum(n, 1), 0.0))
+    return np.stack(grads, axis=-1)
+
+
+def _extrapolate_ring(values: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Fill the ``target`` nodes that have known 26-neighbours with the weighted mean of the
+    neighbours' first-order Taylor extrapolations G(n) + ∇G(n)·(x − n), weights 1/|x − n|²."""
+    grad = _one_sided_gradient(values)
+    known = np.isfinite(values)
+    total = np.zeros(values.shape)
+    weight = np.zeros(values.shape)
+    size = values.shape
+    for delta in itertools.product((-1, 0, 1), repeat=3):
+        if delta == (0, 0, 0):
+            continue
+        # node x receives from its neighbour n = x + delta
+        dst = tuple(slice(max(0, -d), size[a] - max(0, d)) for a, d in enumerate(delta))
+        src = tuple(slice(max(0, d), size[a] - max(0, -d)) for a, d in enumerate(delta))
+        ok = known[src]
+        guess = values[src] - grad[src] @ np.array(delta, float)
+        wgt = ok / float(np.dot(delta, delta))
+        total[dst] += np.where(ok, guess, 0.0) * wgt
+        weight[dst] += wgt
+    fill = target & (weight > 0)
+    out = values.copy()
+    out[fill] = total[fill] / weight[fill]
+    return out
+
+
+def _grow_into(values: np.ndarray, missed: np.ndarray) -> None:
+    """Give missed voxels the layer the growth would have given them next: 1 + the smallest G of
+    their 18 AM-stable neighbours (Alg. 1's rule), front by front, in place."""
+    footprint = np.add.outer(np.add.outer(*[np.abs(np.arange(-1, 2))] * 2), np.abs(np.arange(-1, 2))) <= 2
+    while missed.any():
+        known = np.where(np.isfinite(values), values, np.inf)
+        nxt = ndimage.minimum_filter(known, footprint=footprint, mode="constant", cval=np.inf) + 1.0
+        new = missed & np.isfinite(nxt)
+        if not new.any():
+            return  # pockets with no grown neighbour stay unknown
+        values[new] = nxt[new]
+        missed &= ~new
+
+
+def continue_field(growing: np.ndarray, occupied: np.ndarray, origin: np.ndarray,
+                   voxel_size: float) -> ContinuedField:
+    """Pad G, give missed voxels the next layer the growth would have given them, and extrapolate
+    into two rings of empty voxels around H̄; the platform rows below z = 0 are layer 0 (a boundary
+    value, not a source of extrapolation)."""
+    shape = np.array(growing.shape) + 2 * PAD
+    occ = np.zeros(shape, bool)
+    occ[PAD:-PAD, PAD:-PAD, PAD:-PAD] = occupied
+    g = np.full(shape, np.nan)
+    inner = g[PAD:-PAD, PAD:-PAD, PAD:-PAD]
+    inner[growing > 0] = growing[growing > 0]
+    _grow_into(g, occ & ~np.isfinite(g))
+    grown = np.isfinite(g)
+    cube = np.ones((3, 3, 3), bool)
+    near1 = ndimage.binary_dilation(occ, cube)
+    near2 = ndimage.binary_dilation(near1, cube)
+    below = np.zeros(shape, bool)
+    below[:, :, :PAD] = True
+    target = near2 & ~below & ~np.isfinite(g)
+    while target.any():
+        nxt = _extrapolate_ring(g, target)
+        new = target & np.isfinite(nxt)
+        if not new.any():
+            break  # missed pockets with no known neighbour stay unknown (cells there are inactive)
+        g = nxt
+        target &= ~new
+    g[below] = 0.0
+    w = float(voxel_size)
+    gradient = np.stack(np.gradient(g, w), axis=-1)
+    domain = near1 & np.isfinite(g)
+    domain[:, :, PAD - 1] = domain[:, :, PAD]  # the platform row under the model
+    domain[:, :, :PAD - 1] = False
+    return ContinuedField(values=g, gradient=gradient, domain=domain, solid_nodes=occ, grown=grown,
+                          origin=np.asarray(origin, float) - PAD * w, voxel_size=w)
+
+
+# ----------------------------------------------------------------------------------------------
+# 2. dual contouring
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """Grid edges between two domain nodes with different values, per axis (the narrow-band pool)."""
+
+    lower: tuple[np.ndarray, np.ndarray, np.ndarray]  # linear id of the lower end node
+    lo: tuple[np.ndarray, np.ndarray, np.ndarray]
+    hi: tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def _edge_pool(field: ContinuedField) -> _Edges:
+    v, d = field.values, field.domain
+    lower, lo, hi = [], [], []
+    for axis in range(3):
+        a = [slice(None)] * 3
+        b = [slice(None)] * 3
+        a[axis], b[axis] = slice(0, -1), slice(1, None)
+        va, vb = v[tuple(a)], v[tuple(b)]
+        ok = d[tuple(a)] & d[tuple(b)] & (va != vb)
+        idx = np.argwhere(ok)
+        lower.append(np.ravel_multi_index(idx.T, v.shape))
+        lo.append(np.minimum(va[ok], vb[ok]))
+        hi.append(np.maximum(va[ok], vb[ok]))
+    return _Edges(tuple(lower), tuple(lo), tuple(hi))
+
+
+def _active_cells(field: ContinuedField) -> np.ndarray:
+    """Flat bool over nodes: the cell whose lowest corner is this node has all 8 corners in the domain."""
+    d = field.domain
+    act = np.zeros(d.shape, bool)
+    core = d[:-1, :-1, :-1].copy()
+    for di in (0, 1):
+        for dj in (0, 1):
+            for dk in (0, 1):
+                core &= d[di:d.shape[0] - 1 + di, dj:d.shape[1] - 1 + dj, dk:d.shape[2] - 1 + dk]
+    act[:-1, :-1, :-1] = core
+    return act.ravel()
+
+
+def _solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray) -> np.ndarray:
+    """argmin Σ(n·(x − p))² by the truncated pseudo-inverse around the mass point (batched)."""
+    lam, vec = np.linalg.eigh(ata)
+    keep = lam > QEF_TRUNCATION * lam[:, -1:]
+    inv = np.where(keep, 1.0 / np.where(keep, lam, 1.0), 0.0)
+    r = atb - np.einsum("nij,nj->ni", ata, mass)
+    return mass + np.einsum("nij,nj->ni", vec, inv * np.einsum("nji,nj->ni", vec, r))
+
+
+def dual_contour(field: ContinuedField, level: float, band: tuple[float, float] | None = None, *,
+                 edges: _Edges | None = None, active: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Dual contouring of the continued field at ``level``: (vertices (n,3) mm, faces (m,3)), faces
+    oriented along +∇G. ``edges``/``active`` may be passed to reuse the per-field precomputation.
+
+    With ``band`` = (lo, hi], the G values of the layer being extracted, a jump between grown
+    voxels (G = a → b ≥ a + 2, no material of layers a+1 … b−1 on that edge) is used only by the
+    layer owning one of its ends, with the crossing one G-step per voxel from that end (so the top
+    of layer a sits on the voxel face); plain linear isosurfaces would stack b − a − 1 sheets there.
+    """
+    edges = _edge_pool(field) if edges is None else edges
+    active = _active_cells(field) if active is None else active
+    shape = field.values.shape
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    vals = field.values.ravel()
+    grad = field.gradient.reshape(-1, 3)
+    solid = field.solid_nodes.ravel()
+    grown = field.grown.ravel()
+    w = field.voxel_size
+    pts, nrm, quads, up = [], [], [], []
+    for axis in range(3):
+        m = (edges.lo[axis] <= level) & (edges.hi[axis] > level)
+        a = edges.lower[axis][m]
+        b = a + strides[axis]
+        fa, fb = vals[a], vals[b]
+        t = (level - fa) / (fb - fa)
+        if band is not None:
+            f_lo, f_hi = np.minimum(fa, fb), np.maximum(fa, fb)
+            jump = grown[a] & grown[b] & (f_hi - f_lo >= 2)
+            lo_in = (f_lo > band[0]) & (f_lo <= band[1])
+            hi_in = (f_hi > band[0]) & (f_hi <= band[1])
+            from_lo = np.clip(np.where(lo_in, level - f_lo, 1 - (f_hi - level)), 0.0, 1.0)
+            t = np.where(jump, np.where(fa < fb, from_lo, 1 - from_lo), t)
+            keep = ~jump | lo_in | hi_in
+            a, b, fa, fb, t = a[keep], b[keep], fa[keep], fb[keep], t[keep]
+        # a crossing on an edge leaving H̄ stays in the empty voxel's half (outside H)
+        t = np.where(solid[a] & ~solid[b], np.maximum(t, 0.5), t)
+        t = np.where(solid[b] & ~solid[a], np.minimum(t, 0.5), t)
+        ijk = np.stack(np.unravel_index(a, shape), axis=1).astype(float)
+        p = field.origin + w * ijk
+        p[:, axis] += w * t
+        n = (1 - t)[:, None] * grad[a] + t[:, None] * grad[b]
+        pts.append(p)
+        nrm.append(n)
+        bx, cx = strides[(axis + 1) % 3], strides[(axis + 2) % 3]
+        quads.append(np.stack([a, a - bx, a - bx - cx, a - cx], axis=1))  # CCW about +axis
+        up.append(fa <= level)
+    if not pts:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    p = np.concatenate(pts)
+    n = np.concatenate(nrm)
+    quads = np.concatenate(quads)
+    up = np.concatenate(up)
+    n = np.nan_to_num(n)
+    norm = np.linalg.norm(n, axis=1, keepdims=True)
+    n = np.divide(n, norm, out=np.zeros_like(n), where=norm > 0)
+
+    # QEF accumulation over the active cells around every crossing edge
+    cell_of = quads.ravel()
+    edge_of = np.repeat(np.arange(len(p)), 4)
+    ok = active[cell_of]
+    cells, inv = np.unique(cell_of[ok], return_inverse=True)
+    e = edge_of[ok]
+    count = np.bincount(inv, minlength=len(cells)).astype(float)
+    mass = np.stack([np.bincount(inv, p[e, i], len(cells)) for i in range(3)], axis=1) / count[:, None]
+    nn = n[e][:, :, None] * n[e][:, None, :]
+    ata = np.stack([np.bincount(inv, nn[:, i, j], len(cells)) for i in range(3) for j in range(3)],
+                   axis=1).reshape(-1, 3, 3)
+    nb = n[e] * np.einsum("ij,ij->i", n[e], p[e])[:, None]
+    atb = np.stack([np.bincount(inv, nb[:, i], len(cells)) for i in range(3)], axis=1)
+    x = _solve_qef(ata, atb, mass)
+    box_lo = np.full((len(cells), 3), np.inf)
+    box_hi = np.full((len(cells), 3), -np.inf)
+    np.minimum.at(box_lo, inv, p[e])
+    np.maximum.at(box_hi, inv, p[e])
+    x = np.clip(x, box_lo, box_hi)
+
+    full = active[quads].all(axis=1)
+    q = np.searchsorted(cells, quads[full])
+    q = np.where(up[full][:, None], q, q[:, ::-1])
+    d02 = np.linalg.norm(x[q[:, 0]] - x[q[:, 2]], axis=1)
+    d13 = np.linalg.norm(x[q[:, 1]] - x[q[:, 3]], axis=1)
+    split02 = (d02 <= d13)[:, None]
+    t1 = np.where(split02, q[:, [0, 1, 2]], q[:, [1, 2, 3]])
+    t2 = np.where(split02, q[:, [0, 2, 3]], q[:, [1, 3, 0]])
+    faces = np.concatenate([t1, t2])
+    used, faces = np.unique(faces, return_inverse=True)
+    return x[used], faces.reshape(-1, 3)
+
+
+# ----------------------------------------------------------------------------------------------
+# 3. trimming by H
+
+
+def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points of p on triangles (a, b, c), row by row (Ericson 2005, §5.1.5), and their
+    barycentric coordinates, exactly 0 on the feature's missing corners (edge and vertex regions)."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
+    bp, cp = p - b, p - c
+    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
+    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        denom = va + vb + vc
+        bary = np.stack([va / denom, vb / denom, vc / denom], axis=1)  # face region
+        t_ab = d1 / (d1 - d3)
+        t_ac = d2 / (d2 - d6)
+        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+    regions = [  # first matching region wins (Ericson's order)
+        ((d1 <= 0) & (d2 <= 0), np.stack([np.ones_like(d1), 0 * d1, 0 * d1], 1)),
+        ((d3 >= 0) & (d4 <= d3), np.stack([0 * d1, np.ones_like(d1), 0 * d1], 1)),
+        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1 - t_ab, t_ab, 0 * d1], 1)),
+        ((d6 >= 0) & (d5 <= d6), np.stack([0 * d1, 0 * d1, np.ones_like(d1)], 1)),
+        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1 - t_ac, 0 * d1, t_ac], 1)),
+        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), np.stack([0 * d1, 1 - t_bc, t_bc], 1)),
+    ]
+    for mask, value in reversed(regions):
+        bary = np.where(mask[:, None], value, bary)
+    bary = np.nan_to_num(bary)
+    q = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
+    return q, bary
+
+
+@dataclass(frozen=True)
+class SolidDistance:
+    """Exact signed distance to a closed, outward-oriented triangle mesh (negative inside).
+
+    The closest triangle comes from k-d trees over triangle centroids, one per radius class so the
+    search ball stays tight; the sign from the angle-weighted pseudonormal of the closest feature
+    (face, edge or vertex), which is exact for closed manifolds (Bærentzen & Aanæs 2005).
+    """
+
+    triangles: np.ndarray       # (F,3,3)
+    face_normals: np.ndarray    # (F,3)
+    edge_normals: np.ndarray    # (F,3,3): pseudonormal of edge k = (corner k, corner k+1)
+    corner_normals: np.ndarray  # (F,3,3): pseudonormal of the vertex at corner k
+    centroids: np.ndarray
+    radii: np.ndarray
+    trees: tuple[tuple[cKDTree, np.ndarray, float], ...]
+    all_tree: cKDTree
+
+    @classmethod
+    def of(cls, mesh: trimesh.Trimesh) -> SolidDistance:
+        if not (mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0):
+            raise CurvsliceError("the solid must be a closed, outward-oriented mesh to trim layers by it; "
+                                 "re-run the solid stage (solid.stl) or repair the model")
+        tri = np.asarray(mesh.triangles, float)
+        fn = np.asarray(mesh.face_normals, float)
+        nf = len(tri)
+        edge_pn = np.zeros((len(mesh.edges_unique), 3))
+        np.add.at(edge_pn, mesh.edges_unique_inverse, np.repeat(fn, 3, axis=0))
+        edge_normals = edge_pn[mesh.edges_unique_inverse].reshape(nf, 3, 3)
+        vertex_pn = np.zeros((len(mesh.vertices), 3))
+        angles = np.asarray(mesh.face_angles, float)
+        np.add.at(vertex_pn, mesh.faces.ravel(), (angles[:, :, None] * fn[:, None, :]).reshape(-1, 3))
+        corner_normals = vertex_pn[mesh.faces]
+        centroids = tri.mean(axis=1)
+        radii = np.linalg.norm(tri - centroids[:, None, :], axis=2).max(axis=1)
+        bound = 1.5 * float(np.median(radii))
+        trees = []
+        remaining = np.arange(nf)
+        while len(remaining):
+            sel = remaining[radii[remaining] <= bound] if radii[remaining].max() > bound else remaining
+            if len(sel):
+                trees.append((cKDTree(centroids[sel]), sel, float(radii[sel].max())))
+            remaining = np.setdiff1d(remaining, sel, assume_unique=True)
+            bound *= 2
+        return cls(tri, fn, edge_normals, corner_normals, centroids, radii, tuple(trees), cKDTree(centroids))
+
+    def __call__(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (n,) and closest points (n,3) on ∂H."""
+        p = np.asarray(points, float).reshape(-1, 3)
+        if len(p) == 0:
+            return np.zeros(0), np.zeros((0, 3))
+        k = min(4, len(self.centroids))
+        _, near = self.all_tree.query(p, k=k)
+        near = near.reshape(len(p), k)
+        owner = np.repeat(np.arange(len(p)), k)
+        best = self._best(p, owner, near.ravel())
+        upper = np.sqrt(best[0])
+        for tree, ids, rmax in self.trees:
+            hits = tree.query_ball_point(p, upper + rmax, return_sorted=False)
+            counts = np.fromiter(map(len, hits), np.int64, len(hits))
+            if counts.sum() == 0:
+                continue
+            cand = ids[np.fromiter(itertools.chain.from_iterable(hits), np.int64, int(counts.sum()))]
+            own = np.repeat(np.arange(len(p)), counts)
+            gap = np.linalg.norm(p[own] - self.centroids[cand], axis=1) - self.radii[cand]
+            keep = gap <= upper[own]
+            best = self._best(p, own[keep], cand[keep], best)
+        d2, q, tri, bary = best
+        region = (bary > 0).sum(axis=1)  # 3 face, 2 edge, 1 vertex
+        rows = np.arange(len(p))
+        pn = self.face_normals[tri].copy()
+        on_edge = region == 2
+        missing = np.argmin(bary[on_edge] > 0, axis=1)  # the corner not on the edge
+        pn[on_edge] = self.edge_normals[tri[on_edge], (missing + 1) % 3]
+        at_vertex = region == 1
+        corner = np.argmax(bary[at_vertex], axis=1)
+        pn[at_vertex] = self.corner_normals[tri[at_vertex], corner]
+        side = np.sign(np.einsum("ij,ij->i", p - q, pn))
+        return side * np.sqrt(d2[rows]), q
+
+    def _best(self, p: np.ndarray, owner: np.ndarray, cand: np.ndarray,
+              previous: tuple[np.ndarray, ...] | None = None) -> tuple[np.ndarray, ...]:
+        """Fold candidate (point, triangle) pairs into the running best per point."""
+        if previous is not None and len(owner) == 0:
+            return previous
+        t = self.triangles[cand]
+        q, bary = closest_on_triangles(p[owner], t[:, 0], t[:, 1], t[:, 2])
+        d2 = np.einsum("ij,ij->i", p[owner] - q, p[owner] - q)
+        order = np.lexsort((d2, owner))
+        first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+        if previous is None:
+            d2_out = np.full(len(p), np.inf)
+            q_out = np.zeros((len(p), 3))
+            tri_out = np.zeros(len(p), np.int64)
+            bary_out = np.zeros((len(p), 3))
+        else:
+            d2_out, q_out, tri_out, bary_out = (x.copy() for x in previous)
+        rows = owner[first]
+        better = d2[first] < d2_out[rows]
+        rows, first = rows[better], first[better]
+        d2_out[rows], q_out[rows], tri_out[rows], bary_out[rows] = d2[first], q[first], cand[first], bary[first]
+        return d2_out, q_out, tri_out, bary_out
+
+
+@dataclass(frozen=True)
+class VoxelSides:
+    """Per voxel of the field grid: −1 entirely inside H, +1 entirely outside, 0 touched by ∂H."""
+
+    side: np.ndarray
+    origin: np.ndarray
+    voxel_size: float
+
+    @classmethod
+    def of(cls, solid: trimesh.Trimesh, origin: np.ndarray, voxel_size: float,
+           shape: tuple[int, int, int]) -> VoxelSides:
+        tri = np.asarray(solid.triangles, float)
+        touched = _surface_voxels(tri, origin, voxel_size, shape)
+        inside = _interior_winding(tri, origin, voxel_size, shape)
+        side = np.where(touched, 0, np.where(inside, -1, 1)).astype(np.int8)
+        return cls(side, np.asarray(origin, float), float(voxel_size))
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        ijk = np.rint((points - self.origin) / self.voxel_size).astype(np.int64)
+        inside_grid = ((ijk >= 0) & (ijk < self.side.shape)).all(axis=1)
+        out = np.ones(len(points), np.int8)  # beyond the grid: outside H̄ ⊇ H
+        i = ijk[inside_grid]
+        out[inside_grid] = self.side[i[:, 0], i[:, 1], i[:, 2]]
+        return out
+
+
+def trim_by_solid(vertices: np.ndarray, faces: np.ndarray, distance: SolidDistance,
+                  sides: VoxelSides) -> tuple[np.ndarray, np.ndarray]:
+    """Keep the part of a triangle mesh inside H (§3.4.5, Fig. 3.8b): triangles are clipped along
+    the zero set of the signed distance, new vertices lie on ∂H; orientation is preserved."""
+    if len(faces) == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    w = sides.voxel_size
+    v = np.array(vertices, float)
+    side = sides(v)
+    exact = side == 0  # in a voxel touched by ∂H: needs the exact value
+    sd = np.where(exact, np.nan, np.where(side > 0, np.inf, -np.inf))
+    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    keys, e_inv = np.unique(edges[:, 0] * len(v) + edges[:, 1], return_inverse=True)
+    uniq = np.stack([keys // len(v), keys % len(v)], axis=1)
+    e_inv = e_inv.reshape(-1)
+    crossing_edges = np.sign(sd[uniq[:, 0]]) != np.sign(sd[uniq[:, 1]])
+    exact[uniq[crossing_edges].ravel()] = True  # endpoints of possible crossings need the value
+    d, q = distance(v[exact])
+    sd[exact] = d
+    on = np.abs(sd) <= SNAP * w
+    v[np.flatnonzero(exact)[np.abs(d) <= SNAP * w]] = q[np.abs(d) <= SNAP * w]
+    sd[on] = 0.0
+    s = np.sign(sd)
+
+    # new vertices where an edge goes strictly from inside to outside: regula falsi (Illinois)
+    cross = (s[uniq[:, 0]] * s[uniq[:, 1]]) < 0
+    ce = uniq[cross]
+    a, b = v[ce[:, 0]], v[ce[:, 1]]
+    fa, fb = sd[ce[:, 0]], sd[ce[:, 1]]
+    x = a.copy()
+    todo = np.ones(len(ce), bool)
+    side_kept = np.zeros(len(ce), np.int8)
+    for _ in range(ROOT_ITERATIONS):
+        if not todo.any():
+            break
+        i = np.flatnonzero(todo)
+        t = fa[i] / (fa[i] - fb[i])
+        xi = a[i] + t[:, None] * (b[i] - a[i])
+        fx, qx = distance(xi)
+        x[i] = xi
+        done = np.abs(fx) <= ROOT_TOL * w
+        x[i[done]] = qx[done]
+        # Illinois: halve the value kept twice in a row
+        left = np.sign(fx) == np.sign(fa[i])
+        a[i[left]], fa[i[left]] = xi[left], fx[left]
+        b[i[~left]], fb[i[~left]] = xi[~left], fx[~left]
+        halve_b = left & (side_kept[i] == 1)
+        halve_a = ~left & (side_kept[i] == -1)
+        fb[i[halve_b]] *= 0.5
+        fa[i[halve_a]] *= 0.5
+        side_kept[i] = np.where(left, 1, -1)
+        todo[i[done]] = False
+    if todo.any():
+        _, qx = distance(x[todo])
+        x[todo] = qx  # not converged (ill-conditioned); the closest point of ∂H is the best estimate
+    new_id = np.full(len(uniq), -1, np.int64)
+    new_id[cross] = len(v) + np.arange(cross.sum())
+    v = np.concatenate([v, x])
+
+    # Sutherland-Hodgman per triangle: slots (corner k, crossing on edge k), k = 0, 1, 2
+    keep_corner = s[faces] <= 0
+    slots = np.full((len(faces), 6), -1, np.int64)
+    slots[:, 0::2] = np.where(keep_corner, faces, -1)
+    slots[:, 1::2] = new_id[e_inv].reshape(-1, 3)
+    order = np.argsort(slots < 0, axis=1, kind="stable")
+    poly = np.take_along_axis(slots, order, axis=1)
+    count = (poly >= 0).sum(axis=1)
+    tris = [poly[count >= j + 2][:, [0, j, j + 1]] for j in (1, 2, 3)]  # fan: (0,1,2), (0,2,3), (0,3,4)
+    out = np.concatenate(tris)
+    used, out = np.unique(out, return_inverse=True)
+    return v[used], out.reshape(-1, 3)
+
+
+# ----------------------------------------------------------------------------------------------
+# the stage
+
+
+def layer_levels(max_growing: int, voxel_size: float, layer_height: float | None = None) -> np.ndarray:
+    """Isovalue of each layer's working surface: g_{l+1} = l·s + ½ of Eq. 3.2, s = d / w, for
+    l = 1 … ⌈max G / s⌉ (see the module docstring for the indexing)."""
+    step = 1.0 if layer_height is None else float(layer_height) / float(voxel_size)
+    if not step > 0:
+        raise CurvsliceError(f"layer height must be positive, got {layer_height}")
+    count = int(np.ceil(max_growing / step - 1e-9))
+    return 0.5 + step * np.arange(1, count + 1)
+
+
+def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size: float,
+                             solid: trimesh.Trimesh, layer_height: float | None = None,
+                             occupied: np.ndarray | None = None,
+                             progress: bool = False) -> list[trimesh.Trimesh]:
+    """One trimmed working surface per layer, in print order (§3.4.5).
+
+    ``growing`` is G (int, 0 = empty/missed) on the voxel grid (``origin`` = centre of voxel
+    (0,0,0), mm); ``occupied`` is H̄ (default ``growing > 0``; pass it so missed voxels are bridged);
+    ``solid`` is H. Each mesh's ``metadata`` holds ``layer``, ``isovalue``, ``lowered`` (fallback
+    level used), ``untrimmed_faces`` and the seconds spent in ``dc_seconds`` / ``trim_seconds``.
+    """
+    growing = np.asarray(growing)
+    if growing.ndim != 3 or not np.issubdtype(growing.dtype, np.integer):
+        raise CurvsliceError("the growing field must be a 3D integer grid (field.npz 'growing')")
+    occupied = growing > 0 if occupied is None else np.asarray(occupied, bool)
+    if occupied.shape != growing.shape:
+        raise CurvsliceError("field.npz is inconsistent: 'occupied' and 'growing' differ in shape")
+    if growing.max(initial=0) < 1:
+        raise CurvsliceError("the growing field is empty; run the field stage first")
+    w = float(voxel_size)
+    field = continue_field(growing, occupied, origin, w)
+    edges, active = _edge_pool(field), _active_cells(field)
+    distance = SolidDistance.of(solid)
+    sides = VoxelSides.of(solid, np.asarray(origin, float), w, growing.shape)
+    step = 1.0 if layer_height is None else float(layer_height) / w
+    levels = layer_levels(int(growing.max()), w, layer_height)
+    layers = []
+    iterator = range(len(levels))
+    if progress:
+        from tqdm import tqdm
+        iterator = tqdm(iterator, desc="working surfaces", unit="layer")
+    for i in iterator:
+        band = (float(levels[i] - step), float(levels[i]))
+        dc_s = trim_s = 0.0
+        for offset in FALLBACK_OFFSETS:
+            level = float(levels[i] + offset * step)
+            t0 = time.perf_counter()
+            v, f = dual_contour(field, level, band, edges=edges, active=active)
+            t1 = time.perf_counter()
+            tv, tf = trim_by_solid(v, f, distance, sides)
+            dc_s += t1 - t0
+            trim_s += time.perf_counter() - t1
+            if len(tf):
+                break
+        mesh = trimesh.Trimesh(tv, tf, process=False)
+        mesh.metadata.update(layer=i + 1, isovalue=level, lowered=offset != 0.0, untrimmed_faces=len(f),
+                             dc_seconds=dc_s, trim_seconds=trim_s)
+        layers.append(mesh)
+    return layers
+
+
+def write_layers(outdir: str | Path, layers: list[trimesh.Trimesh]) -> list[Path]:
+    """Write ``layers/layer_0001.ply …`` (binary PLY, mm, model frame) into a slice folder."""
+    folder = Path(outdir) / "layers"
+    folder.mkdir(parents=True, exist_ok=True)
+    for old in folder.glob("layer_*.ply"):
+        old.unlink()
+    paths = []
+    for i, mesh in enumerate(layers, start=1):
+        path = folder / f"layer_{i:04d}.ply"
+        mesh.export(path, file_type="ply", encoding="binary")
+        paths.append(path)
+    return paths
