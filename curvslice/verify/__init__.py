@@ -14,7 +14,7 @@ from pathlib import Path
 from curvslice.errors import CurvsliceError
 
 #: Stage checker modules of ``curvslice.verify``, in pipeline order.
-STAGES = ("field", "toolpaths", "robot")
+STAGES = ("field", "layers", "toolpaths", "robot")
 
 
 @dataclass(frozen=True)
