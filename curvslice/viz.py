@@ -26,7 +26,9 @@ import meshcat.geometry as mg
 import numpy as np
 import trimesh
 from matplotlib import colormaps
+from matplotlib.colors import ListedColormap
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 from meshcat.animation import Animation
 from meshcat.servers.zmqserver import start_zmq_server_as_subprocess
 
@@ -318,7 +320,7 @@ def preview_png(folder: SliceFolder, path: str | Path, layer: int | None = None,
     n = folder.layer_count
     if n == 0:
         raise CurvsliceError(f"{folder.path}: the growing field is empty; nothing to preview")
-    cmap = colormaps[COLORMAP]
+    cmap = ListedColormap(layer_colors(n))  # layer l drawn in exactly layer_colors(n)[l - 1]
     fig = Figure(figsize=(15, 5.2), dpi=110)
     ijk = np.argwhere(folder.growing > 0)
     g = folder.growing[tuple(ijk.T)]
@@ -330,7 +332,7 @@ def preview_png(folder: SliceFolder, path: str | Path, layer: int | None = None,
         pick = np.random.default_rng(0).choice(len(pts_c), max_points, replace=False)
         pts_c, g_c = pts_c[pick], g_c[pick]
     ax = fig.add_subplot(1, 3, 1, projection="3d")
-    ax.scatter(pts_c[:, 0], pts_c[:, 1], pts_c[:, 2], c=g_c, cmap=cmap, vmin=1, vmax=max(n, 2),
+    ax.scatter(pts_c[:, 0], pts_c[:, 1], pts_c[:, 2], c=g_c, cmap=cmap, vmin=0.5, vmax=n + 0.5,
                s=(250.0 / max(folder.growing.shape)) ** 2, marker="s", depthshade=False, linewidths=0)
     ax.view_init(elev=18, azim=65)  # looking at the cut face from +y
     _equal_axes(ax, pts)
@@ -343,14 +345,14 @@ def preview_png(folder: SliceFolder, path: str | Path, layer: int | None = None,
     w = folder.voxel_size
     ext = [folder.origin[0] - w / 2, folder.origin[0] + w * (folder.growing.shape[0] - 0.5),
            folder.origin[2] - w / 2, folder.origin[2] + w * (folder.growing.shape[2] - 0.5)]
-    im = ax.imshow(sec, origin="lower", extent=ext, cmap=cmap, vmin=1, vmax=max(n, 2), interpolation="nearest")
+    im = ax.imshow(sec, origin="lower", extent=ext, cmap=cmap, vmin=0.5, vmax=n + 0.5, interpolation="nearest")
     missed = folder.occupied[:, j, :].T & (folder.growing[:, j, :].T == 0)
     if missed.any():
         ax.imshow(np.ma.masked_equal(missed.astype(int), 0), origin="lower", extent=ext, cmap="gray", vmin=0, vmax=2)
     ax.set_aspect("equal")
     ax.set_title(f"section y = {ymid:.1f} mm ({folder.method}; black = missed)")
     ax.set_xlabel("x mm"), ax.set_ylabel("z mm")
-    fig.colorbar(im, ax=ax, label="layer (print order)", shrink=0.8)
+    fig.colorbar(im, ax=ax, label="layer (print order)", shrink=0.8).locator = MaxNLocator(integer=True)
 
     ax = fig.add_subplot(1, 3, 3, projection="3d")
     tp = folder.toolpaths
@@ -365,10 +367,10 @@ def preview_png(folder: SliceFolder, path: str | Path, layer: int | None = None,
             s = folder.layers[chosen - 1]
             ax.plot_trisurf(s.vertices[:, 0], s.vertices[:, 1], s.vertices[:, 2], triangles=s.faces,
                             color=(0.85, 0.85, 0.85, 0.35), linewidth=0)
-        color = cmap((chosen - 0.5) / max(n, 1))
+        color = layer_colors(n)[min(chosen, n) - 1]
         for piece in np.unique(pid):
             p = pos[pid == piece]
-            ax.plot(p[:, 0], p[:, 1], p[:, 2], color=color, lw=0.9)
+            ax.plot(p[:, 0], p[:, 1], p[:, 2], color=color, lw=1.2)
         pick = np.arange(0, len(pos), 6)
         ax.quiver(pos[pick, 0], pos[pick, 1], pos[pick, 2], nrm[pick, 0], nrm[pick, 1], nrm[pick, 2],
                   length=folder.voxel_size, color="k", linewidth=0.5, arrow_length_ratio=0.0)
