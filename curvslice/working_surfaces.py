@@ -572,13 +572,14 @@ def layer_levels(max_growing: int, voxel_size: float, layer_height: float | None
 def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size: float,
                              solid: trimesh.Trimesh, layer_height: float | None = None,
                              occupied: np.ndarray | None = None,
-                             progress: bool = False) -> list[trimesh.Trimesh]:
+                             progress=None) -> list[trimesh.Trimesh]:
     """One trimmed working surface per layer, in print order (§3.4.5).
 
     ``growing`` is G (int, 0 = empty/missed) on the voxel grid (``origin`` = centre of voxel
     (0,0,0), mm); ``occupied`` is H̄ (default ``growing > 0``; pass it so missed voxels are bridged);
     ``solid`` is H. Each mesh's ``metadata`` holds ``layer``, ``isovalue``, ``lowered`` (fallback
     level used), ``untrimmed_faces`` and the seconds spent in ``dc_seconds`` / ``trim_seconds``.
+    ``progress`` is an optional tqdm-like object updated once per layer.
     """
     growing = np.asarray(growing)
     if growing.ndim != 3 or not np.issubdtype(growing.dtype, np.integer):
@@ -596,11 +597,7 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
     step = 1.0 if layer_height is None else float(layer_height) / w
     levels = layer_levels(int(growing.max()), w, layer_height)
     layers = []
-    iterator = range(len(levels))
-    if progress:
-        from tqdm import tqdm
-        iterator = tqdm(iterator, desc="working surfaces", unit="layer")
-    for i in iterator:
+    for i in range(len(levels)):
         band = (float(levels[i] - step), float(levels[i]))
         dc_s = trim_s = 0.0
         for offset in FALLBACK_OFFSETS:
@@ -617,6 +614,8 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
         mesh.metadata.update(layer=i + 1, isovalue=level, lowered=offset != 0.0, untrimmed_faces=len(f),
                              dc_seconds=dc_s, trim_seconds=trim_s)
         layers.append(mesh)
+        if progress is not None:
+            progress.update(1)
     return layers
 
 

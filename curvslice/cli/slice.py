@@ -27,6 +27,7 @@ from curvslice.peeling_field import peeling_field
 from curvslice.platform import DEFAULT_MARGIN, DEFAULT_THICKNESS, disc_platform, load_platform
 from curvslice.solid import UP_AXES, load_solid
 from curvslice.voxelize import voxelize
+from curvslice.working_surfaces import extract_working_surfaces, layer_levels, write_layers
 
 
 @dataclass
@@ -86,9 +87,35 @@ def stage_field(ctx: Context) -> None:
               f"({ctx.report['timings_s'].get('growing', 0):.1f} s growing)")
 
 
+def stage_layers(ctx: Context) -> None:
+    """Growing field → one working surface per layer, dual-contoured and trimmed by H (§3.4.5)."""
+    a, d = ctx.args, ctx.data
+    grid = d["grid"]
+    count = len(layer_levels(int(d["growing"].max()), grid.voxel_size, a.layer_height))
+    with ctx.timed("layers"), ctx.bar("working surfaces", count, unit="layer") as bar:
+        layers = extract_working_surfaces(d["growing"], grid.origin, grid.voxel_size, d["solid"],
+                                          layer_height=a.layer_height, occupied=grid.occupied, progress=bar)
+        write_layers(ctx.out, layers)
+    d["layers"] = layers
+    faces = [len(m.faces) for m in layers]
+    ctx.report["layers"] = {
+        "count": len(layers), "layer_height_mm": a.layer_height or grid.voxel_size,
+        "triangles": sum(faces), "untrimmed_triangles": sum(m.metadata["untrimmed_faces"] for m in layers),
+        "triangles_per_layer": faces,
+        "lowered": [m.metadata["layer"] for m in layers if m.metadata["lowered"]],
+        "empty": [m.metadata["layer"] for m in layers if not len(m.faces)],
+        "dual_contouring_s": round(sum(m.metadata["dc_seconds"] for m in layers), 3),
+        "trimming_s": round(sum(m.metadata["trim_seconds"] for m in layers), 3),
+    }
+    if not a.quiet:
+        print(f"layers: {len(layers)} working surfaces, {sum(faces)} triangles "
+              f"({ctx.report['timings_s']['layers']:.1f} s)")
+
+
 #: The pipeline, in order: (name, stage function).
 STAGES: list[tuple[str, Callable[[Context], None]]] = [
     ("field", stage_field),
+    ("layers", stage_layers),
 ]
 
 
@@ -115,6 +142,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--eps", type=float, default=GROW_EPS, help="ε of the inside test, in voxel widths")
     g.add_argument("--peel-eps", type=float, default=PEEL_EPS, help="ε of the peeling shells, in voxel widths")
     g.add_argument("--memory-limit", type=float, default=8.0, help="refuse grids needing more than this, GiB")
+    g.add_argument("--layer-height", type=float, help="d of Eq. 3.2, mm (default: the voxel width)")
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
     p.add_argument("--preview", action="store_true", help="also write preview.png (layers by print order, cut-away; tool-paths of one layer)")
     p.add_argument("--preview-layer", type=int, help="layer whose tool-paths preview.png shows (default: the middle one)")
