@@ -44,6 +44,8 @@ _GAP = 0.65
 #: Level of the outermost contour in path widths: a little under half a width, so the bead still
 #: reaches a jagged layer boundary (the contour smooths its notches) and the distance field's error.
 _FIRST = 0.45
+#: Holes of a layer narrower than this many path widths (perimeter < π·_BRIDGE·w) are bridged.
+_BRIDGE = 3.0
 #: Sharp corners (turn above this angle, radians) are kept as samples when re-sampling.
 _CORNER = np.radians(30.0)
 
@@ -535,10 +537,10 @@ def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: f
 def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
                 fill_gaps: bool = True) -> LayerPaths:
     """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
-    :func:`gap_passes` through what they leave open when ``fill_gaps``. Holes narrower than two
-    widths are bridged (:func:`bridge_small_holes`)."""
+    :func:`gap_passes` through what they leave open when ``fill_gaps``. Holes narrower than
+    ``_BRIDGE`` widths are bridged (:func:`bridge_small_holes`)."""
     surface = clean_surface(mesh)
-    v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, 2 * np.pi * width)
+    v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, _BRIDGE * np.pi * width)
     if len(f) == 0:
         return LayerPaths(pieces=[])
     dist = boundary_distance(v, f)
