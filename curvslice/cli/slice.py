@@ -26,6 +26,8 @@ from curvslice.outdir import atomic_folder
 from curvslice.peeling_field import peeling_field
 from curvslice.platform import DEFAULT_MARGIN, DEFAULT_THICKNESS, disc_platform, load_platform
 from curvslice.solid import UP_AXES, load_solid
+from curvslice.toolpaths import ToolpathSettings, plan_toolpaths, save_toolpaths
+from curvslice.verify.toolpaths import layer_cover
 from curvslice.voxelize import voxelize
 from curvslice.working_surfaces import extract_working_surfaces, layer_levels, write_layers
 
@@ -112,10 +114,42 @@ def stage_layers(ctx: Context) -> None:
               f"({ctx.report['timings_s']['layers']:.1f} s)")
 
 
+def stage_toolpaths(ctx: Context) -> None:
+    """Working surfaces → connected Fermat spirals, Eq. 3.3 orientations, E, extended G-code (§3.5.1-3.5.2)."""
+    a, layers = ctx.args, ctx.data["layers"]
+    settings = ToolpathSettings(
+        path_width=a.path_width or ctx.data["grid"].voxel_size / 0.8, step=a.step, filament_diameter=a.filament,
+        feed=a.feed, max_tilt=float(np.radians(a.max_tilt)), fill_gaps=not a.no_gap_passes)
+    with ctx.timed("toolpaths"), ctx.bar("tool-paths", len(layers), unit="layer") as bar:
+        tp = plan_toolpaths(layers, settings, progress=bar)
+        save_toolpaths(ctx.out, tp, settings)
+    ctx.data["toolpaths"] = tp
+    cover = [layer_cover(m, tp.positions[tp.layer == i], tp.path[tp.layer == i], settings.path_width, seed=i)
+             for i, m in enumerate(layers, start=1) if len(m.faces)]
+    rows = tp.layers
+    ctx.report["toolpaths"] = {
+        "path_width_mm": settings.path_width, "samples": len(tp.positions), "pieces": sum(r["pieces"] for r in rows),
+        "jumps": sum(r["jumps"] for r in rows), "gap_passes": sum(r["gap_passes"] for r in rows),
+        "travel_mm": round(sum(r["travel_mm"] for r in rows), 3), "length_mm": round(sum(r["length_mm"] for r in rows), 3),
+        "filament_mm": round(float(tp.extrusion.sum()), 3),
+        "coverage_min": round(min((c for c, _ in cover), default=0.0), 4),
+        "coverage_mean": round(float(np.mean([c for c, _ in cover])) if cover else 0.0, 4),
+        "overlap_max": round(max((o for _, o in cover), default=0.0), 4),
+        "spirals_s": round(tp.seconds["spirals"], 3), "orientation_s": round(tp.seconds["orientation"], 3),
+        "per_layer": rows,
+    }
+    if not a.quiet:
+        r = ctx.report["toolpaths"]
+        print(f"toolpaths: {r['samples']} samples, {r['pieces']} pieces ({r['jumps']} jumps), coverage "
+              f"min {100 * r['coverage_min']:.1f}% mean {100 * r['coverage_mean']:.1f}% "
+              f"({ctx.report['timings_s']['toolpaths']:.1f} s)")
+
+
 #: The pipeline, in order: (name, stage function).
 STAGES: list[tuple[str, Callable[[Context], None]]] = [
     ("field", stage_field),
     ("layers", stage_layers),
+    ("toolpaths", stage_toolpaths),
 ]
 
 
@@ -143,6 +177,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--peel-eps", type=float, default=PEEL_EPS, help="ε of the peeling shells, in voxel widths")
     g.add_argument("--memory-limit", type=float, default=8.0, help="refuse grids needing more than this, GiB")
     g.add_argument("--layer-height", type=float, help="d of Eq. 3.2, mm (default: the voxel width)")
+    g = p.add_argument_group("tool-paths (§3.5.1-3.5.2)")
+    g.add_argument("--path-width", type=float, help="spacing of the spiral passes, mm (default: voxel / 0.8, the nozzle of §3.6)")
+    g.add_argument("--step", type=float, default=1.0, help="re-sampling distance along the paths, mm (§3.5.2)")
+    g.add_argument("--filament", type=float, default=1.75, help="filament diameter, mm")
+    g.add_argument("--feed", type=float, default=600.0, help="nozzle speed along the paths, mm/min")
+    g.add_argument("--max-tilt", type=float, default=75.0, help="largest angle between tool and layer normal, degrees")
+    g.add_argument("--no-gap-passes", action="store_true", help="spirals only: no extra passes through the gaps they leave")
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
     p.add_argument("--preview", action="store_true", help="also write preview.png (layers by print order, cut-away; tool-paths of one layer)")
     p.add_argument("--preview-layer", type=int, help="layer whose tool-paths preview.png shows (default: the middle one)")
