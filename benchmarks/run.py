@@ -1,0 +1,584 @@
+"""The benchmark suite: every pipeline stage timed separately on the shared models, plus a size sweep.
+
+Each case (a model at a voxel size) runs the pipeline once, stage by stage; a stage is repeated in
+place (same inputs, deterministic outputs) up to ``repeat`` times while its accumulated time stays
+under ``budget`` seconds, so fast stages get a median and a spread and slow ones are run once. The
+peak resident memory of each stage is read from ``/proc/self/status`` (VmHWM, reset before the
+stage through ``/proc/self/clear_refs``). Library calls only: the suite times what ``curvslice
+slice`` runs, stage by stage, and writes ``results.json``, ``RESULTS.md`` and ``results.png``.
+
+Stages: load/repair/place, voxelize, peeling field (Alg. 4), growing field by each method (Alg. 1,
+1+3, 5), working surfaces (dual contouring, trimming; §3.4.5), heat-method geodesics, Fermat
+spirals, orientations (§3.5.1-3.5.2), IK ladder, ladder-graph search, motion planning with lazy
+collision checks (§3.5.3, §4.3.1), export (extended G-code, joints.csv, robot program).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import re
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from curvslice.errors import CurvsliceError
+
+REPO = Path(__file__).resolve().parents[1]
+STANDARD = (("bunny", 1.0), ("fertility", 0.76), ("kitten", 0.8), ("rocker-arm", 0.8), ("fandisk", 0.8))
+SWEEP = ("kitten", (1.6, 1.2, 0.8, 0.6))
+QUICK_STANDARD = (("tee", 2.0), ("arch", 1.5))
+QUICK_SWEEP = ("arch", (2.5, 2.0, 1.5))
+METHODS = ("gcfa", "sp-gcfa", "pg-sp-gcfa")
+ROBOT_WAYPOINTS = 2_545  # Table 4.2, WS1
+QUICK_ROBOT_WAYPOINTS = 150
+
+#: Stage keys in pipeline order, with the label the tables use.
+STAGE_LABELS = {
+    "load": "load / repair / place",
+    "voxelize": "voxelize (conservative)",
+    "peeling": "peeling field (Alg. 4)",
+    "growing_gcfa": "growing: gcfa (Alg. 1)",
+    "growing_sp-gcfa": "growing: sp-gcfa (Alg. 1+3)",
+    "growing_pg-sp-gcfa": "growing: pg-sp-gcfa (Alg. 5)",
+    "surfaces": "working surfaces (total)",
+    "dual_contouring": "· dual contouring",
+    "trimming": "· trimming by H",
+    "geodesics": "geodesics (heat method)",
+    "toolpaths": "tool-paths (total)",
+    "spirals": "· Fermat spirals (incl. geodesics)",
+    "orientation": "· orientations (Eq. 3.3)",
+    "ik": "IK ladder (p rotations)",
+    "graph_search": "ladder-graph search",
+    "motion": "motion plan + lazy fcl",
+    "export": "export (G-code, joints, program)",
+}
+#: Stages whose time is the sum of per-layer figures the library reports inside another stage.
+DERIVED = {"dual_contouring", "trimming", "spirals", "orientation"}
+MISSING = {
+    "jerk optimization (Alg. 6, §4.3.2)": "no library function yet (Table 4.2 'Optm.': 30 s on WS1)",
+}
+
+
+# ----------------------------------------------------------------------------- measuring
+
+
+def _status_mb(key: str) -> float | None:
+    try:
+        text = Path("/proc/self/status").read_text()
+    except OSError:
+        return None
+    m = re.search(rf"^{key}:\s+(\d+) kB", text, re.M)
+    return int(m.group(1)) / 1024 if m else None
+
+
+def _reset_peak() -> bool:
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+        return True
+    except OSError:
+        return False
+
+
+@dataclass
+class StageResult:
+    """Wall times of the repetitions of one stage and its peak memory (MB; None if unknown)."""
+
+    times: list[float] = field(default_factory=list)
+    peak_rss_mb: float | None = None
+    peak_above_start_mb: float | None = None
+
+    def summary(self) -> dict[str, object]:
+        t = np.asarray(self.times, float)
+        return {
+            "times_s": [round(float(x), 4) for x in t], "reps": len(t),
+            "median_s": round(float(np.median(t)), 4), "min_s": round(float(t.min()), 4),
+            "max_s": round(float(t.max()), 4),
+            "peak_rss_mb": None if self.peak_rss_mb is None else round(self.peak_rss_mb, 1),
+            "peak_above_start_mb": None if self.peak_above_start_mb is None else round(self.peak_above_start_mb, 1),
+        }
+
+
+@dataclass
+class Recorder:
+    """Times stages with repetitions under a per-stage budget; prints one line per stage."""
+
+    repeat: int = 3
+    budget: float = 20.0
+    quiet: bool = False
+    stages: dict[str, StageResult] = field(default_factory=dict)
+
+    def run(self, key: str, fn: Callable[[], object], derived: Callable[[object], dict[str, float]] | None = None):
+        """Run ``fn`` up to ``repeat`` times (at least once); return its last result. ``derived``
+        maps a result to sub-stage seconds recorded beside (e.g. dual contouring inside surfaces)."""
+        res = StageResult()
+        result = None
+        while len(res.times) < max(1, self.repeat) and (not res.times or sum(res.times) < self.budget):
+            start_rss = _status_mb("VmRSS")
+            reset = _reset_peak()
+            t0 = time.perf_counter()
+            result = fn()
+            res.times.append(time.perf_counter() - t0)
+            peak = _status_mb("VmHWM") if reset else None
+            if peak is not None:
+                res.peak_rss_mb = max(res.peak_rss_mb or 0.0, peak)
+                res.peak_above_start_mb = max(res.peak_above_start_mb or 0.0, peak - (start_rss or 0.0))
+            for sub, seconds in (derived(result) if derived else {}).items():
+                self.stages.setdefault(sub, StageResult()).times.append(seconds)
+        self.stages[key] = res
+        if not self.quiet:
+            s = res.summary()
+            print(f"  {STAGE_LABELS.get(key, key):36s} {s['median_s']:9.3f} s  (n={s['reps']}, "
+                  f"{s['min_s']:.3f}-{s['max_s']:.3f}; peak {s['peak_rss_mb']} MB)", flush=True)
+        return result
+
+
+# ----------------------------------------------------------------------------- one case
+
+
+def robot_subset(toolpaths, target: int) -> np.ndarray:
+    """Rows of the first layers (print order) that together reach ``target`` waypoints."""
+    layer = np.asarray(toolpaths.layer)
+    values, counts = np.unique(layer, return_counts=True)
+    upto = values[min(int(np.searchsorted(np.cumsum(counts), target)), len(values) - 1)]
+    return np.flatnonzero(layer <= upto)
+
+
+def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, robot: str | None = "ur5",
+             robot_waypoints: int = ROBOT_WAYPOINTS, downstream: bool = True, repeat: int = 3,
+             budget: float = 20.0, quiet: bool = False) -> dict[str, object]:
+    """All stages on one model at one voxel size; returns the case's JSON record."""
+    from curvslice.growing_field import growing_field
+    from curvslice.peeling_field import peeling_field
+    from curvslice.platform import disc_platform
+    from curvslice.solid import load_solid
+    from curvslice.voxelize import voxelize
+
+    rec = Recorder(repeat=repeat, budget=budget, quiet=quiet)
+    if not quiet:
+        print(f"{model.stem} @ {voxel} mm", flush=True)
+    solid, _ = rec.run("load", lambda: load_solid(model))
+    platform = disc_platform(solid)
+    grid = rec.run("voxelize", lambda: voxelize(solid, voxel))
+    counts: dict[str, object] = {"voxels": int(grid.occupied.sum()), "grid_shape": list(grid.shape)}
+    peel = rec.run("peeling", lambda: peeling_field(grid, platform.vertices))
+    counts["max_peeling"] = int(peel.max())
+    growing = None
+    for method in methods:
+        g, stats = rec.run(f"growing_{method}", lambda m=method: growing_field(grid, platform.vertices, m, peeling=peel))
+        counts[method] = {"layers": stats.layers, "missed": stats.missed, "shadow_tests": stats.shadow_tests}
+        if method == "pg-sp-gcfa" or growing is None:
+            growing = g
+    if downstream:
+        counts.update(_downstream(rec, solid, grid, growing, platform, robot, robot_waypoints))
+    return {"model": model.stem, "voxel_mm": voxel, "counts": counts,
+            "stages": {k: v.summary() for k, v in rec.stages.items()}}
+
+
+def _downstream(rec: Recorder, solid, grid, growing, platform, robot: str | None, robot_waypoints: int) -> dict[str, object]:
+    from curvslice.geodesic import boundary_distance
+    from curvslice.toolpaths import ToolpathSettings, clean_surface, plan_toolpaths, save_toolpaths
+    from curvslice.working_surfaces import extract_working_surfaces
+
+    counts: dict[str, object] = {}
+    layers = rec.run(
+        "surfaces", lambda: extract_working_surfaces(growing, grid.origin, grid.voxel_size, solid, occupied=grid.occupied),
+        lambda ls: {"dual_contouring": sum(m.metadata["dc_seconds"] for m in ls),
+                    "trimming": sum(m.metadata["trim_seconds"] for m in ls)})
+    counts["surfaces"] = {"layers": len(layers), "empty": sum(len(m.faces) == 0 for m in layers),
+                          "triangles": int(sum(len(m.faces) for m in layers))}
+    cleaned = [clean_surface(m) for m in layers]
+    rec.run("geodesics", lambda: [boundary_distance(m.vertices, m.faces) for m in cleaned if len(m.faces)])
+    settings = ToolpathSettings()
+    tp = rec.run("toolpaths", lambda: plan_toolpaths(layers, settings),
+                 lambda t: {"spirals": t.seconds["spirals"], "orientation": t.seconds["orientation"]})
+    counts["toolpaths"] = {"samples": int(len(tp.positions)), "pieces": int(len(np.unique(tp.path))),
+                           "layers_with_paths": int(len(np.unique(tp.layer)))}
+    motion, tpd, cell, family = None, None, None, None
+    if robot and len(tp.positions):
+        motion, tpd, cell, family = _robot(rec, tp, layers, platform, robot, robot_waypoints, counts)
+    with tempfile.TemporaryDirectory() as tmp:
+        def export() -> None:
+            save_toolpaths(Path(tmp), tp, settings)
+            if motion is not None:
+                from curvslice.exporters.joints_csv import write_robot_outputs
+
+                write_robot_outputs(Path(tmp), cell, family, tpd, motion)
+        rec.run("export", export)
+    return counts
+
+
+def _robot(rec: Recorder, tp, layers, platform, robot_name: str, target: int, counts: dict):
+    from curvslice.collision import CollisionScene
+    from curvslice.kinematics import load_robot
+    from curvslice.motion import circular_joints, ladder, plan_print, segment_speeds, shortest_path, step_times
+    from curvslice.workcell import load_workcell
+
+    robot, cell = load_robot(robot_name), load_workcell(robot_name)
+    rows = robot_subset(tp, target)
+    tpd = {k: getattr(tp, k)[rows] for k in ("positions", "normals", "layer", "path", "feed", "extrusion")}
+    per_layer = [np.flatnonzero(tpd["layer"] == v) for v in np.unique(tpd["layer"])]
+    rungs = rec.run("ik", lambda: [ladder(robot, cell, tpd["positions"][r], tpd["normals"][r], cell.rotations)
+                                   for r in per_layer])
+    circ = circular_joints(*cell.limits(robot))
+
+    def search() -> int:
+        breaks = 0
+        for r, (q, valid) in zip(per_layer, rungs):
+            dt = step_times(tpd["positions"][r], segment_speeds(tpd["path"][r], tpd["feed"][r], cell), cell.min_step_time)
+            path, _, _ = shortest_path(q, valid, dt, cell.max_joint_speed, circ)
+            breaks += int((np.diff(path.segment[path.segment >= 0]) != 0).sum())
+        return breaks
+
+    breaks = rec.run("graph_search", search)
+    scene = CollisionScene(robot, cell, platform.vertices)
+    motion = rec.run("motion", lambda: plan_print(robot, cell, tpd, collides_for_layer=lambda v: scene.for_layer(layers, v)))
+    counts["robot"] = {"robot": robot_name, "waypoints": len(rows), "layers": len(per_layer), "rotations": cell.rotations,
+                       "ik_nodes": int(sum(v.sum() for _, v in rungs)), "breaks_without_collisions": breaks,
+                       "rows": int(len(motion.q)), "segments": int(len(np.unique(motion.segment))),
+                       "collision_checks": int(sum(s["collision_checks"] for s in motion.layers))}
+    return motion, tpd, cell, robot.family
+
+
+# ----------------------------------------------------------------------------- the suite
+
+
+def machine() -> dict[str, object]:
+    """What the figures were measured on (the load average says whether the machine was shared)."""
+    import scipy
+    import trimesh
+
+    cpu = "unknown"
+    try:
+        m = re.search(r"^model name\s*:\s*(.+)$", Path("/proc/cpuinfo").read_text(), re.M)
+        cpu = m.group(1).strip() if m else cpu
+    except OSError:
+        pass
+    mem = _meminfo_gb()
+    return {
+        "nproc": len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count(),
+        "cpu": cpu, "memory_gb": mem, "python": platform.python_version(), "numpy": np.__version__,
+        "scipy": scipy.__version__, "trimesh": trimesh.__version__, "platform": platform.platform(),
+        "loadavg_start": list(os.getloadavg()),
+    }
+
+
+def _meminfo_gb() -> float | None:
+    try:
+        m = re.search(r"^MemTotal:\s+(\d+) kB", Path("/proc/meminfo").read_text(), re.M)
+        return round(int(m.group(1)) / 2**20, 1) if m else None
+    except OSError:
+        return None
+
+
+def models_dir() -> Path:
+    env = os.environ.get("CURVSLICE_MODELS")
+    return Path(env) if env else REPO.parent / "shared" / "models"
+
+
+def _model_path(name: str, quick: bool) -> Path:
+    path = (REPO / "models" if quick else models_dir()) / f"{name}.stl"
+    if not path.is_file():
+        raise CurvsliceError(f"benchmark model {path} not found; set CURVSLICE_MODELS to the folder of the shared models")
+    return path
+
+
+def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, methods: tuple[str, ...] = METHODS,
+              robot: str | None = "ur5", models: tuple[str, ...] | None = None, sweep: bool = True,
+              quiet: bool = False) -> dict[str, object]:
+    """Standard cases (+ the size sweep) → the JSON record written by :func:`write_outputs`."""
+    standard = QUICK_STANDARD if quick else STANDARD
+    if models:
+        unknown = set(models) - {m for m, _ in standard}
+        if unknown:
+            raise CurvsliceError(f"--models {', '.join(sorted(unknown))}: choose from {', '.join(m for m, _ in standard)}")
+        standard = tuple((m, w) for m, w in standard if m in models)
+    sweep_model, sweep_sizes = QUICK_SWEEP if quick else SWEEP
+    target = QUICK_ROBOT_WAYPOINTS if quick else ROBOT_WAYPOINTS
+    out: dict[str, object] = {
+        "suite": "quick" if quick else "full", "machine": machine(),
+        "settings": {"repeat": repeat, "budget_s": budget, "methods": list(methods), "robot": robot,
+                     "robot_waypoints": target, "standard": [list(c) for c in standard],
+                     "sweep": {"model": sweep_model, "voxels_mm": list(sweep_sizes)} if sweep else None},
+        "standard": [], "sweep": [],
+    }
+    start = time.perf_counter()
+    for name, voxel in standard:
+        out["standard"].append(run_case(_model_path(name, quick), voxel, methods=methods, robot=robot,
+                                        robot_waypoints=target, repeat=repeat, budget=budget, quiet=quiet))
+    if sweep:
+        for voxel in sweep_sizes:
+            out["sweep"].append(run_case(_model_path(sweep_model, quick), voxel, methods=("pg-sp-gcfa",), robot=None,
+                                         repeat=repeat, budget=budget, quiet=quiet))
+    out["machine"]["loadavg_end"] = list(os.getloadavg())
+    out["wall_s"] = round(time.perf_counter() - start, 1)
+    return out
+
+
+def write_outputs(result: dict[str, object], outdir: Path) -> list[Path]:
+    """``results.json``, ``RESULTS.md`` and ``results.png`` in ``outdir``."""
+    outdir.mkdir(parents=True, exist_ok=True)
+    paths = [outdir / "results.json", outdir / "RESULTS.md", outdir / "results.png"]
+    paths[0].write_text(json.dumps(result, indent=1) + "\n")
+    paths[1].write_text(markdown(result))
+    plot(result, paths[2])
+    return paths
+
+
+# ----------------------------------------------------------------------------- report
+
+
+def _fmt(x: float | None) -> str:
+    if x is None:
+        return "–"
+    if abs(x) >= 100:
+        return f"{x:,.0f}"
+    return f"{x:.1f}" if abs(x) >= 10 else f"{x:.3g}"
+
+
+def _cell(stage: dict | None) -> str:
+    if stage is None:
+        return "–"
+    if stage["reps"] == 1:
+        return _fmt(stage["median_s"])
+    return f"{_fmt(stage['median_s'])} ({_fmt(stage['min_s'])}–{_fmt(stage['max_s'])}, n={stage['reps']})"
+
+
+def _median(case: dict, key: str) -> float | None:
+    st = case["stages"].get(key)
+    return None if st is None else st["median_s"]
+
+
+def _ratio(ours: float | None, ref: float | None) -> str:
+    return "–" if ours is None or not ref else f"{ours / ref:.2f}"
+
+
+def _case_title(case: dict) -> str:
+    return f"{case['model']} @{case['voxel_mm']:g} mm"
+
+
+def _sum(*values: float | None) -> float | None:
+    return None if any(v is None for v in values) else float(sum(values))
+
+
+def markdown(result: dict[str, object]) -> str:
+    """The report: machine, stage times, memory, counts, the published figures beside ours, the sweep."""
+    from benchmarks.paper import AUTHORS_CPP, AUTHORS_MACHINE, PAPER_MACHINE, TABLE_3_1, TABLE_4_2
+
+    m, st, cases = result["machine"], result["settings"], result["standard"]
+    flag = " --quick" if result["suite"] == "quick" else ""
+    lines = [
+        f"# curvslice benchmark ({result['suite']} suite)", "",
+        f"Regenerate with `curvslice bench{flag}` (or `python -m benchmarks{flag}`). Every stage is a library call "
+        "timed on its own; a stage is repeated in place up to "
+        f"{st['repeat']} times while its total stays under {st['budget_s']:g} s, so cells read "
+        "`median (min–max, n)`, or one figure when it ran once. Seconds, wall clock.", "",
+        "## Machine", "",
+        f"- CPU: {m['cpu']}, {m['nproc']} cores available; memory {m['memory_gb']} GB",
+        f"- Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, trimesh {m['trimesh']}; {m['platform']}",
+        f"- load average at start {', '.join(f'{x:.2f}' for x in m['loadavg_start'])}, at end "
+        f"{', '.join(f'{x:.2f}' for x in m.get('loadavg_end', []))}; suite wall time {result.get('wall_s', 0):,.0f} s",
+    ]
+    if max(m["loadavg_start"][0], *(m.get("loadavg_end") or [0])) > 0.5 * m["nproc"]:
+        lines.append(f"- **the machine was shared during the run** (load average above {0.5 * m['nproc']:g} on "
+                     f"{m['nproc']} cores): figures are upper bounds")
+    lines += ["", "## Stage times on the standard models (s)", "",
+              "| stage | " + " | ".join(_case_title(c) for c in cases) + " |",
+              "|---|" + "---|" * len(cases)]
+    keys = [k for k in STAGE_LABELS if any(k in c["stages"] for c in cases)]
+    for k in keys:
+        lines.append(f"| {STAGE_LABELS[k]} | " + " | ".join(_cell(c["stages"].get(k)) for c in cases) + " |")
+    lines += ["", "Rows starting with · are parts of the total above them (summed per-layer times the library "
+              "reports); the robot rows use the first layers of the tool-paths, in print order, until they hold "
+              f"at least {st['robot_waypoints']:,} waypoints (Table 4.2's WS1 has 2,545), p = 30 rotations, "
+              f"the shipped {st['robot']} workcell.", "",
+              "## Counts", "",
+              "| case | voxels | " + " | ".join(f"{x} layers / missed" for x in st["methods"])
+              + " | surfaces (empty) | tool-path samples / pieces | robot waypoints / segments |",
+              "|---|---|" + "---|" * len(st["methods"]) + "---|---|---|"]
+    for c in cases:
+        n = c["counts"]
+        meth = [f"{n[x]['layers']} / {n[x]['missed']}" if x in n else "–" for x in st["methods"]]
+        surf = f"{n['surfaces']['layers']} ({n['surfaces']['empty']})" if "surfaces" in n else "–"
+        tp = f"{n['toolpaths']['samples']:,} / {n['toolpaths']['pieces']:,}" if "toolpaths" in n else "–"
+        rb = f"{n['robot']['waypoints']:,} / {n['robot']['segments']}" if "robot" in n else "–"
+        lines.append(f"| {_case_title(c)} | {n['voxels']:,} | " + " | ".join(meth) + f" | {surf} | {tp} | {rb} |")
+    lines += ["", "## Peak memory per stage (MB resident; in brackets: above the resident size at the stage's start)", "",
+              "| stage | " + " | ".join(_case_title(c) for c in cases) + " |", "|---|" + "---|" * len(cases)]
+    for k in keys:
+        if k in DERIVED:
+            continue
+        cells = []
+        for c in cases:
+            s = c["stages"].get(k)
+            cells.append("–" if s is None or s["peak_rss_mb"] is None else f"{s['peak_rss_mb']:,.0f} (+{s['peak_above_start_mb']:,.0f})")
+        lines.append(f"| {STAGE_LABELS[k]} | " + " | ".join(cells) + " |")
+
+    lines += ["", "## Beside the thesis, Table 3.1", "", f"Thesis: {PAPER_MACHINE}; hollowed models. Ratio = ours / "
+              "thesis (below 1: we are faster). The thesis's 'Total' is the whole decomposition (peeling field + "
+              "growth with shadow prevention); ours is peeling + pg-sp-gcfa growth; its 'Shadow Prev.' is only a "
+              "part of the growth, shown beside our whole growth.", "",
+              "| model | figure | thesis | ours | ratio |", "|---|---|---|---|---|"]
+    for c in cases:
+        ref = TABLE_3_1.get(c["model"])
+        if ref is None:
+            continue
+        n = c["counts"]
+        grow = _median(c, "growing_pg-sp-gcfa")
+        rows = [  # (figure, thesis, ours, ratio shown)
+            ("voxels", ref["voxels"], n["voxels"], False),
+            ("peeling field s", ref["peeling"], _median(c, "peeling"), True),
+            ("shadow prev. s (ours: whole growth)", ref["shadow"], grow, True),
+            ("decomposition total s", ref["total"], _sum(_median(c, "peeling"), grow), True),
+            ("working surfaces s", ref["surfaces"], _median(c, "surfaces"), True),
+            ("tool-paths s", ref["toolpaths"], _median(c, "toolpaths"), True),
+            ("missed voxels", ref["missed"], n.get("pg-sp-gcfa", {}).get("missed"), False),
+        ]
+        for name, theirs, ours, ratio in rows:
+            lines.append(f"| {_case_title(c)} | {name} | {_fmt(theirs)} | {_fmt(ours)} | {_ratio(ours, theirs) if ratio else '–'} |")
+    if not any(c["model"] in TABLE_3_1 for c in cases):
+        lines.append("| (no model of Table 3.1 in this suite) | | | | |")
+
+    lines += ["", "## Beside the authors' C++ code on a 2-core machine (DESIGN.md)", "", f"{AUTHORS_MACHINE}. "
+              "Its voxel counts include a one-voxel shell its voxelizer adds. 'written' = layers whose trimmed "
+              "surface is non-empty. Ratio = ours / theirs.", "",
+              "| case (theirs) | voxels theirs / ours | peeling s theirs / ours (ratio) | growing s theirs / ours (ratio) "
+              "| missed theirs / ours | layers theirs / ours | trimming s theirs / ours (ratio) | layers written theirs / ours |",
+              "|---|---|---|---|---|---|---|---|"]
+    for (model, voxel, method), ref in AUTHORS_CPP.items():
+        c = next((c for c in cases if c["model"] == model), None)
+        if c is None or f"growing_{method}" not in c["stages"]:
+            continue
+        n = c["counts"]
+        note = "" if abs(c["voxel_mm"] - voxel) < 1e-9 else f" (ours @{c['voxel_mm']:g} mm)"
+        peel, grow, trim = _median(c, "peeling"), _median(c, f"growing_{method}"), _median(c, "trimming")
+        written = n["surfaces"]["layers"] - n["surfaces"]["empty"] if "surfaces" in n else None
+        lines.append(
+            f"| {model} @{voxel:g} mm, {method}{note} | {ref['voxels']:,} / {n['voxels']:,} "
+            f"| {_fmt(ref['peeling'])} / {_fmt(peel) if method == 'pg-sp-gcfa' else '–'} ({_ratio(peel, ref['peeling']) if method == 'pg-sp-gcfa' else '–'}) "
+            f"| {_fmt(ref['growing'])} / {_fmt(grow)} ({_ratio(grow, ref['growing'])}) "
+            f"| {ref['missed']} / {n[method]['missed']} | {ref['layers']} / {n[method]['layers']} "
+            f"| {_fmt(ref['trimming'])} / {_fmt(trim) if method == 'pg-sp-gcfa' else '–'} ({_ratio(trim, ref['trimming']) if method == 'pg-sp-gcfa' else '–'}) "
+            f"| {ref['written']} of {ref['extracted']} / {written if written is not None and method == 'pg-sp-gcfa' else '–'} |")
+    if not any(c["model"] == model for model, _, _ in AUTHORS_CPP for c in cases):
+        lines.append("| (no shared model in this suite) | | | | | | | |")
+
+    ws1 = TABLE_4_2["WS1"]
+    lines += ["", "## Motion beside the thesis, Table 4.2", "",
+              f"WS1: {ws1['waypoints']:,} waypoints, init (IK ladder + graph search) {ws1['init']:g} s, jerk optimization "
+              f"{ws1['optm']:g} s, dense graph {ws1['dense']:,.0f} s ({PAPER_MACHINE}). Ours on the first layers of each model "
+              "(per-waypoint rates make the sizes comparable; ratio = ours / thesis per waypoint).", "",
+              "| case | waypoints | IK s | graph search s | IK + search s per 1k wpt (ratio to WS1 init) "
+              "| motion + fcl s per 1k wpt (ratio) | collision checks |", "|---|---|---|---|---|---|---|"]
+    per_k = ws1["init"] / ws1["waypoints"] * 1000
+    for c in cases:
+        rb = c["counts"].get("robot")
+        if rb is None:
+            continue
+        ik, gs, mo = _median(c, "ik"), _median(c, "graph_search"), _median(c, "motion")
+        init_k = (ik + gs) / rb["waypoints"] * 1000
+        mo_k = mo / rb["waypoints"] * 1000
+        lines.append(f"| {_case_title(c)} | {rb['waypoints']:,} | {_fmt(ik)} | {_fmt(gs)} | {_fmt(init_k)} ({init_k / per_k:.2f}) "
+                     f"| {_fmt(mo_k)} ({mo_k / per_k:.2f}) | {rb['collision_checks']:,} |")
+
+    sweep = result.get("sweep") or []
+    if sweep:
+        skeys = [k for k in STAGE_LABELS if k not in DERIVED and all(k in c["stages"] for c in sweep)]
+        lines += ["", f"## Size sweep: {sweep[0]['model']} at {len(sweep)} voxel sizes", "",
+                  "Exponent = slope of log(time) against log(voxels) (least squares): how each stage's cost grows "
+                  "with the voxel count.", "",
+                  "| stage | " + " | ".join(f"@{c['voxel_mm']:g} mm ({c['counts']['voxels']:,} vx)" for c in sweep) + " | exponent |",
+                  "|---|" + "---|" * (len(sweep) + 1)]
+        for k in skeys:
+            slope = sweep_exponent(sweep, k)
+            lines.append(f"| {STAGE_LABELS[k]} | " + " | ".join(_cell(c["stages"][k]) for c in sweep)
+                         + f" | {'–' if slope is None else f'{slope:.2f}'} |")
+    lines += ["", "## Not yet implemented", ""]
+    lines += [f"- {name}: {why}" for name, why in MISSING.items()]
+    lines += ["", "![time per stage; time against voxels](results.png)", ""]
+    return "\n".join(lines)
+
+
+def sweep_exponent(sweep: list[dict], key: str) -> float | None:
+    """Least-squares slope of log t against log voxels over the sweep (None below two sizes)."""
+    pts = [(c["counts"]["voxels"], c["stages"][key]["median_s"]) for c in sweep if key in c["stages"]]
+    pts = [(v, t) for v, t in pts if v > 0 and t > 0]
+    if len(pts) < 2:
+        return None
+    x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def plot(result: dict[str, object], path: Path) -> Path:
+    """Left: median time per stage and model (log axis). Right: time against voxels, log-log, per stage."""
+    from matplotlib import colormaps
+    from matplotlib.figure import Figure
+
+    cases, sweep = result["standard"], result.get("sweep") or []
+    fig = Figure(figsize=(15, 6.5), dpi=100)
+    ax = fig.add_subplot(1, 2, 1)
+    keys = [k for k in STAGE_LABELS if k not in DERIVED and any(k in c["stages"] for c in cases)]
+    colors = colormaps["tab10"](np.arange(max(len(cases), 1)) % 10)
+    h = 0.8 / max(len(cases), 1)
+    for i, c in enumerate(cases):
+        y = np.arange(len(keys)) + i * h
+        t = [c["stages"][k]["median_s"] if k in c["stages"] else np.nan for k in keys]
+        ax.barh(y, t, height=h, color=colors[i], label=f"{_case_title(c)} ({c['counts']['voxels']:,} vx)")
+    ax.set_yticks(np.arange(len(keys)) + 0.4 - h / 2, [STAGE_LABELS[k] for k in keys], fontsize=8)
+    ax.invert_yaxis()
+    ax.set_xscale("log")
+    ax.set_xlabel("median wall time (s)")
+    ax.set_title("time per stage")
+    ax.legend(fontsize=8, loc="lower right")
+    ax = fig.add_subplot(1, 2, 2)
+    if sweep:
+        skeys = [k for k in keys if all(k in c["stages"] for c in sweep)]
+        cmap = colormaps["tab20"]
+        v = np.array([c["counts"]["voxels"] for c in sweep], float)
+        for j, k in enumerate(skeys):
+            t = np.array([c["stages"][k]["median_s"] for c in sweep])
+            slope = sweep_exponent(sweep, k)
+            ax.loglog(v, t, "o-", color=cmap(j % 20), label=f"{STAGE_LABELS[k]} (slope {slope:.2f})")
+        ax.set_xlabel("voxels")
+        ax.set_ylabel("median wall time (s)")
+        ax.set_title(f"size sweep: {sweep[0]['model']} at " + ", ".join(f"{c['voxel_mm']:g}" for c in sweep) + " mm")
+        ax.legend(fontsize=7)
+        ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path)
+    return path
+
+
+# ----------------------------------------------------------------------------- command line
+
+
+def add_arguments(p) -> None:
+    """Options shared by ``curvslice bench`` and ``python -m benchmarks``."""
+    p.add_argument("--quick", action="store_true", help="small repository models (tee, arch) for CI, in well under a minute")
+    p.add_argument("--out", help="folder for results.json, RESULTS.md, results.png (default: benchmarks/ for the full "
+                   "suite, ./bench_quick for --quick)")
+    p.add_argument("--repeat", type=int, default=3, help="repetitions per stage (while under --budget)")
+    p.add_argument("--budget", type=float, default=20.0, help="stop repeating a stage once its runs total this many seconds")
+    p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS, help="growing-field methods to time")
+    p.add_argument("--models", nargs="+", help="only these standard models")
+    p.add_argument("--robot", default="ur5", help="workcell for the robot stages; 'none' skips them")
+    p.add_argument("--no-sweep", action="store_true", help="skip the size sweep")
+    p.add_argument("--quiet", action="store_true", help="no per-stage lines")
+
+
+def execute(args) -> int:
+    """Run the suite from parsed options and write its outputs."""
+    if args.repeat < 1 or args.budget < 0:
+        raise CurvsliceError("--repeat must be at least 1 and --budget non-negative")
+    result = run_suite(quick=args.quick, repeat=args.repeat, budget=args.budget, methods=tuple(args.methods),
+                       robot=None if str(args.robot).lower() == "none" else args.robot,
+                       models=tuple(args.models) if args.models else None, sweep=not args.no_sweep, quiet=args.quiet)
+    out = Path(args.out) if args.out else (Path.cwd() / "bench_quick" if args.quick else REPO / "benchmarks")
+    for path in write_outputs(result, out):
+        print(f"wrote {path}")
+    return 0

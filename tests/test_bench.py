@@ -1,0 +1,118 @@
+"""The benchmark suite: its measuring (repetitions, budget, memory), its arithmetic (sweep exponents,
+ratios to the thesis) and a real ``curvslice bench --quick`` run whose outputs are cross-checked."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+
+import numpy as np
+import pytest
+from matplotlib.image import imread
+
+from benchmarks.paper import AUTHORS_CPP, TABLE_3_1
+from benchmarks.run import DERIVED, STAGE_LABELS, Recorder, markdown, robot_subset, sweep_exponent
+from curvslice.cli import main
+
+
+def test_recorder_repeats_within_budget_and_measures_memory():
+    rec = Recorder(repeat=3, budget=10.0, quiet=True)
+    calls = []
+    assert rec.run("a", lambda: calls.append(time.sleep(0.02)) or len(calls)) == 3
+    s = rec.stages["a"].summary()
+    assert s["reps"] == 3 and s["min_s"] >= 0.02 and s["min_s"] <= s["median_s"] <= s["max_s"]
+    rec = Recorder(repeat=5, budget=0.03, quiet=True)
+    rec.run("slow", lambda: time.sleep(0.05))
+    assert rec.stages["slow"].summary()["reps"] == 1  # over budget after one run
+    rec = Recorder(repeat=1, quiet=True)
+    rec.run("alloc", lambda: np.ones(40_000_000).sum())  # 320 MB, freed at once
+    peak = rec.stages["alloc"].summary()["peak_above_start_mb"]
+    if peak is None:
+        pytest.skip("no /proc/self/clear_refs here")
+    assert 250 < peak < 1000
+
+
+def test_sweep_exponent_recovers_a_power_law():
+    sweep = [{"counts": {"voxels": v}, "stages": {"x": {"median_s": 0.003 * v**1.5}}} for v in (1e3, 4e3, 2e4)]
+    assert sweep_exponent(sweep, "x") == pytest.approx(1.5)
+    assert sweep_exponent(sweep[:1], "x") is None
+
+
+def test_robot_subset_takes_whole_first_layers():
+    class TP:
+        layer = np.repeat([1, 2, 3, 4], [10, 30, 5, 50])
+
+    assert len(robot_subset(TP, 35)) == 40  # layers 1-2: the first to reach 35 waypoints
+    assert len(robot_subset(TP, 10)) == 10
+    assert len(robot_subset(TP, 10_000)) == 95
+
+
+def _fake_case(model: str, voxel: float, scale: float) -> dict:
+    """A case whose every time is ``scale`` × the thesis's (or the authors') figure."""
+    ref, cpp = TABLE_3_1[model], AUTHORS_CPP[(model, 1.0, "pg-sp-gcfa")]
+    t = {"peeling": ref["peeling"] * scale, "growing_pg-sp-gcfa": (ref["total"] - ref["peeling"]) * scale,
+         "surfaces": ref["surfaces"] * scale, "toolpaths": ref["toolpaths"] * scale,
+         "trimming": cpp["trimming"] * scale}
+    stages = {k: {"times_s": [v], "reps": 1, "median_s": v, "min_s": v, "max_s": v, "peak_rss_mb": 100.0,
+                  "peak_above_start_mb": 1.0} for k, v in t.items()}
+    counts = {"voxels": ref["voxels"], "pg-sp-gcfa": {"layers": 90, "missed": 0, "shadow_tests": 1},
+              "surfaces": {"layers": 90, "empty": 0, "triangles": 1}}
+    return {"model": model, "voxel_mm": voxel, "counts": counts, "stages": stages}
+
+
+def test_markdown_puts_the_papers_figures_beside_ours_with_ratios():
+    machine = {"cpu": "x", "nproc": 2, "memory_gb": 1, "python": "3", "numpy": "2", "scipy": "1", "trimesh": "4",
+               "platform": "p", "loadavg_start": [0.1, 0, 0], "loadavg_end": [0.1, 0, 0]}
+    result = {"suite": "full", "machine": machine, "wall_s": 1.0, "standard": [_fake_case("bunny", 1.0, 2.0)], "sweep": [],
+              "settings": {"repeat": 1, "budget_s": 1, "methods": ["pg-sp-gcfa"], "robot": None, "robot_waypoints": 1}}
+    md = markdown(result)
+    row = next(line for line in md.splitlines() if "| decomposition total s |" in line)
+    assert row.split("|")[3].strip() == "204" and row.split("|")[5].strip() == "2.00"  # 203.90 s in Table 3.1
+    assert re.search(r"\| working surfaces s \| 889 \| 1,777 \| 2\.00 \|", md)
+    cpp = next(line for line in md.splitlines() if line.startswith("| bunny @1 mm, pg-sp-gcfa"))
+    assert "363 / 726 (2.00)" in cpp  # trimming: the authors' 362.8 s
+    assert "shared during the run" not in md
+
+
+@pytest.fixture(scope="module")
+def quick_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    assert main(["bench", "--quick", "--repeat", "1", "--out", str(out), "--quiet"]) == 0
+    return out, json.loads((out / "results.json").read_text())
+
+
+def test_quick_bench_times_every_stage(quick_run):
+    out, result = quick_run
+    assert [c["model"] for c in result["standard"]] == ["tee", "arch"]
+    for case in result["standard"]:
+        assert set(case["stages"]) == set(STAGE_LABELS)
+        for st in case["stages"].values():
+            assert st["reps"] >= 1 and 0 < st["median_s"] < 120
+        s = {k: v["median_s"] for k, v in case["stages"].items()}
+        # parts the library reports inside a stage never exceed that stage's wall time
+        assert s["dual_contouring"] + s["trimming"] <= s["surfaces"] * 1.01
+        assert s["spirals"] + s["orientation"] <= s["toolpaths"] * 1.01
+        n = case["counts"]
+        assert n["pg-sp-gcfa"]["missed"] == 0  # the repository models are printable without misses
+        assert n["surfaces"]["layers"] >= n["pg-sp-gcfa"]["layers"] - 1
+        assert n["robot"]["waypoints"] >= 150 and n["robot"]["rows"] <= n["robot"]["waypoints"]
+    sweep = result["sweep"]
+    sizes = [c["voxel_mm"] for c in sweep]
+    voxels = [c["counts"]["voxels"] for c in sweep]
+    assert sizes == sorted(sizes, reverse=True) and voxels == sorted(voxels) and len(set(voxels)) == len(voxels)
+
+
+def test_quick_bench_writes_markdown_and_plot(quick_run):
+    out, result = quick_run
+    md = (out / "RESULTS.md").read_text()
+    for case in result["standard"]:
+        assert f"{case['model']} @{case['voxel_mm']:g} mm" in md
+    for key, label in STAGE_LABELS.items():
+        assert f"| {label} |" in md, label
+        if key not in DERIVED:
+            assert sum(line.startswith(f"| {label} |") for line in md.splitlines()) >= 2  # times + memory
+    assert "Table 3.1" in md and "Table 4.2" in md and "Size sweep" in md and "Not yet implemented" in md
+    img = imread(out / "results.png")[..., :3]
+    assert img.shape[0] > 400 and img.shape[1] > 1000
+    assert (img.std(axis=2) > 0.1).mean() > 0.01  # coloured bars and lines, not a blank canvas
