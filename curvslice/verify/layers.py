@@ -10,8 +10,10 @@
   material ends inside H: next to a jump of the field (two face-adjacent voxels of H̄ whose G differ
   by 2 or more, a missed voxel counting as G = 0);
 * consecutive layers do not intersect (exact triangle-triangle tests on AABB-overlapping pairs);
-* normals point towards later layers, and the spacing between consecutive layers (distance from
-  area-uniform samples of layer l to layer l−1, perpendicular feet only) is reported in voxel widths.
+* each file lies on the voxels of its layer of G (print order as in the field);
+* normals point towards later layers, and the spacing between layers (distance from area-uniform
+  samples of layer l to the nearest of the few layers before it, perpendicular feet only) is
+  reported in voxel widths.
 """
 
 from __future__ import annotations
@@ -32,8 +34,16 @@ TOLERANCE = 0.05
 EMPTY_MATERIAL = 0.5
 #: Samples per voxel edge for the material estimate of an empty layer.
 MATERIAL_LATTICE = 4
+#: Share of layer samples that must lie within one voxel of a voxel of their own layer of G.
+OWN_VOXELS_SHARE = 0.99
 #: Share of spacing samples whose normals must agree with the print order.
 ORIENTATION_SHARE = 0.95
+#: Samples a layer pair needs before its own share is judged (it must agree in the majority).
+PAIR_SAMPLES = 10
+#: Spacing is measured to the union of this many earlier layers (tiny layers interleave in
+#: governed fields), over perpendicular feet nearer than SPACING_REACH voxel widths.
+EARLIER = 4
+SPACING_REACH = 3.0
 #: Plausible mean layer spacing (voxel widths); the thesis measured about 1.25 w (Fig. 3.18).
 SPACING_RANGE = (0.5, 2.5)
 SAMPLES_PER_W2 = 1.0
@@ -150,7 +160,8 @@ def crossing_pairs(a: trimesh.Trimesh, b: trimesh.Trimesh) -> int:
 def layer_spacing(earlier: trimesh.Trimesh, later: trimesh.Trimesh, voxel_size: float,
                   seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Distances (mm) from area-uniform samples of ``later`` to ``earlier`` where the foot is
-    perpendicular, and for each whether both layers' normals point from earlier to later."""
+    perpendicular and nearer than :data:`SPACING_REACH`, and for each whether both layers' normals
+    point from earlier to later."""
     n = int(np.clip(later.area * SAMPLES_PER_W2 / voxel_size**2, 1, MAX_SAMPLES))
     pts, fid = trimesh.sample.sample_surface(later, n, seed=seed)
     foot, dist, tid = trimesh.proximity.closest_point(earlier, pts)
@@ -158,7 +169,7 @@ def layer_spacing(earlier: trimesh.Trimesh, later: trimesh.Trimesh, voxel_size: 
     n_early = earlier.face_normals[tid]
     perpendicular = np.abs(np.einsum("ij,ij->i", vec, n_early)) >= 0.99 * dist
     agree = (np.einsum("ij,ij->i", vec, n_early) > 0) & (np.einsum("ij,ij->i", vec, later.face_normals[fid]) > 0)
-    sel = perpendicular & (dist > 0)
+    sel = perpendicular & (dist > 0) & (dist <= SPACING_REACH * voxel_size)
     return dist[sel], agree[sel]
 
 
@@ -186,6 +197,21 @@ def jump_voxels(growing: np.ndarray, occupied: np.ndarray) -> np.ndarray:
         out[tuple(a)] |= jump
         out[tuple(b)] |= jump
     return out
+
+
+def _near_own_voxels(mesh: trimesh.Trimesh, growing: np.ndarray, origin: np.ndarray, w: float,
+                     layer: int, seed: int = 0) -> np.ndarray:
+    """For area-uniform samples of a layer file: is a voxel of that layer of G within one voxel
+    (Chebyshev) of the sample's nearest voxel?"""
+    n = int(np.clip(mesh.area * SAMPLES_PER_W2 / w**2, 1, MAX_SAMPLES))
+    pts = trimesh.sample.sample_surface(mesh, n, seed=seed)[0]
+    own = np.pad(growing == layer, 1)
+    base = np.rint((pts - origin) / w).astype(np.int64) + 1
+    hit = np.zeros(len(pts), bool)
+    for d in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
+        ijk = np.clip(base + d, 0, np.array(own.shape) - 1)
+        hit |= own[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    return hit
 
 
 def checks(outdir: Path) -> list[Check] | None:
@@ -248,19 +274,31 @@ def checks(outdir: Path) -> list[Check] | None:
     results.append(Check(STAGE, "consecutive layers do not cross", not bad, f"{sum(crossings)} pairs",
                          f"between layers {bad[:10]} and the next" if bad else ""))
 
-    dists, agree = [], []
+    if step == 1.0:
+        near = {i + 1: _near_own_voxels(m, growing, origin, w, i + 1) for i, m in enumerate(layers) if len(m.faces)}
+        share = float(np.mean(np.concatenate(list(near.values()))))
+        worst_layer = min(near, key=lambda k: near[k].mean())
+        results.append(Check(STAGE, "each layer lies on its own voxels", share >= OWN_VOXELS_SHARE,
+                             f"{100 * share:.2f}%", f"of samples within one voxel of a voxel of their layer; "
+                             f"worst layer {worst_layer}: {100 * near[worst_layer].mean():.0f}%"))
+
+    dists, agree, worst = [], [], (1.0, 0)
     for i in range(1, len(layers)):
-        if len(layers[i - 1].faces) and len(layers[i].faces):
-            d, a = layer_spacing(layers[i - 1], layers[i], w, seed=i)
+        earlier = [m for m in layers[max(0, i - EARLIER):i] if len(m.faces)]
+        if earlier and len(layers[i].faces):
+            d, a = layer_spacing(trimesh.util.concatenate(earlier), layers[i], w, seed=i)
             dists.append(d)
             agree.append(a)
+            if len(a) >= PAIR_SAMPLES and a.mean() < worst[0]:
+                worst = (float(a.mean()), i + 1)
     if dists:
         d = np.concatenate(dists) / w
         a = np.concatenate(agree)
         share = float(a.mean()) if len(a) else 0.0
-        results.append(Check(STAGE, "normals towards later layers", share >= ORIENTATION_SHARE,
-                             f"{100 * share:.1f}%", f"of {len(a)} spacing samples"))
-        hist, edges = np.histogram(d, bins=np.r_[np.arange(0, 3.01, 0.25), np.inf])
+        ok = share >= ORIENTATION_SHARE and worst[0] > 0.5
+        results.append(Check(STAGE, "normals towards later layers", ok, f"{100 * share:.1f}%",
+                             f"of {len(a)} spacing samples; worst layer {worst[1]}: {100 * worst[0]:.0f}%"))
+        hist, edges = np.histogram(d, bins=np.arange(0, SPACING_REACH + 0.01, 0.25))
         shares = ", ".join(f"{lo:g}-{hi:g}: {100 * h / len(d):.1f}%" for lo, hi, h in zip(edges[:-1], edges[1:], hist))
         mean = float(d.mean())
         results.append(Check(STAGE, "layer spacing", SPACING_RANGE[0] <= mean <= SPACING_RANGE[1],

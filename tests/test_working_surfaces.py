@@ -1,0 +1,298 @@
+"""Working surfaces (§3.4.5, Eq. 3.2): dual contouring against analytic spheres and scikit-image's
+marching cubes, exact signed distance against analytic solids, trimming a plane by a box, the
+layer policy for jumps, missed voxels and slivers, and the independent verifier on a real field."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+from skimage.measure import marching_cubes
+
+from conftest import shared_models_dir
+
+from curvslice.cli import main
+from curvslice.errors import CurvsliceError
+from curvslice.solid import load_solid
+from curvslice.verify import layers as verify_layers
+from curvslice.voxelize import voxelize
+from curvslice.working_surfaces import (
+    ContinuedField,
+    SolidDistance,
+    VoxelSides,
+    dual_contour,
+    extract_working_surfaces,
+    layer_levels,
+    trim_by_solid,
+    write_layers,
+)
+
+
+def _field_of(values: np.ndarray, origin: np.ndarray, w: float) -> ContinuedField:
+    """A continued field straight from node values (every interior node a usable corner)."""
+    domain = np.zeros(values.shape, bool)
+    domain[1:-1, 1:-1, 1:-1] = True
+    return ContinuedField(values=values, gradient=np.stack(np.gradient(values, w), axis=-1), domain=domain,
+                          solid_nodes=np.ones(values.shape, bool), grown=np.ones(values.shape, bool),
+                          origin=origin, voxel_size=w)
+
+
+def _sphere_field(n: int = 40, w: float = 1.0):
+    origin = np.array([-20.0, -20.0, 0.5]) * w
+    centre = np.array([0.3, 0.1, 20.2]) * w
+    x = origin + w * np.indices((n, n, n)).transpose(1, 2, 3, 0)
+    return np.linalg.norm(x - centre, axis=-1) / w, origin, centre
+
+
+def _boundary_vertices(mesh: trimesh.Trimesh) -> np.ndarray:
+    edges = mesh.edges_sorted
+    return np.unique(edges[trimesh.grouping.group_rows(edges, require_count=1)])
+
+
+def _box(extents, centre) -> trimesh.Trimesh:
+    box = trimesh.creation.box(extents=extents)
+    box.apply_translation(centre)
+    return box
+
+
+def _planar(box: trimesh.Trimesh, w: float):
+    """Voxels of a box with the planar growing field G = k + 1 (ordinary planar printing)."""
+    grid = voxelize(box, w)
+    growing = np.where(grid.occupied, np.indices(grid.shape)[2] + 1, 0).astype(np.int32)
+    return grid, growing
+
+
+@pytest.mark.parametrize("radius", [8.3, 11.7, 15.2])
+def test_sphere_distance_field_gives_spheres(radius):
+    dist, origin, centre = _sphere_field()
+    v, f = dual_contour(_field_of(dist, origin, 1.0), radius)
+    mesh = trimesh.Trimesh(v, f, process=False)
+    err = np.abs(np.linalg.norm(v - centre, axis=1) - radius)
+    assert err.max() <= 0.05  # in voxel widths (w = 1)
+    assert mesh.is_watertight and mesh.euler_number == 2
+    outward = np.einsum("ij,ij->i", mesh.face_normals, mesh.triangles_center - centre)
+    assert (outward > 0).all()  # oriented along +∇G
+    assert mesh.volume == pytest.approx(4 / 3 * np.pi * radius**3, rel=5e-3)
+
+
+def test_dual_contouring_has_fewer_polygons_than_marching_cubes_and_the_same_surface():
+    dist, origin, centre = _sphere_field()
+    radius = 12.4
+    v, f = dual_contour(_field_of(dist, origin, 1.0), radius)
+    mv, mf, _, _ = marching_cubes(dist, radius)
+    mv = origin + mv
+    # one quad per crossing edge (the thesis's "DC generates less polygons"); split into
+    # triangles the counts agree up to the Euler characteristic of a closed genus-0 surface
+    assert len(f) // 2 < len(mf)
+    assert len(f) == len(mf) + 4
+    d_dc_to_mc = trimesh.proximity.closest_point(trimesh.Trimesh(mv, mf), v)[1]
+    assert d_dc_to_mc.max() < 0.1
+
+
+def test_planar_field_and_box_give_flat_squares_with_boundary_on_the_faces():
+    w = 0.8
+    extents, centre = np.array([20.3, 15.7, 10.45]), np.array([0.2, -0.1, 10.45 / 2])
+    box = _box(extents, centre)
+    grid, growing = _planar(box, w)
+    layers = extract_working_surfaces(growing, grid.origin, w, box, occupied=grid.occupied)
+    assert len(layers) == growing.max() == 14
+    lo, hi = centre - extents / 2, centre + extents / 2
+    for layer in layers[:-1]:
+        z = layer.metadata["layer"] * w  # top of voxel row k = layer - 1
+        assert np.allclose(layer.vertices[:, 2], z, atol=1e-9)
+        assert np.allclose(layer.face_normals, [0, 0, 1], atol=1e-9)
+        b = layer.vertices[_boundary_vertices(layer)]
+        on_x = np.isclose(b[:, 0], lo[0]) | np.isclose(b[:, 0], hi[0])
+        on_y = np.isclose(b[:, 1], lo[1]) | np.isclose(b[:, 1], hi[1])
+        assert (on_x | on_y).all()
+        assert ((layer.vertices[:, :2] >= lo[:2] - 1e-9) & (layer.vertices[:, :2] <= hi[:2] + 1e-9)).all()
+        # the square minus the four corner chamfers (boundary vertices sit on mesh edges)
+        assert extents[0] * extents[1] - 2 * w**2 <= layer.area <= extents[0] * extents[1] + 1e-9
+        assert len(layer.split(only_watertight=False)) == 1
+    # the last voxel row holds only 0.05 mm of the box: its surface is lowered into that sliver
+    last = layers[-1]
+    assert last.metadata["lowered"] and len(last.faces)
+    assert (12 * w < last.vertices[:, 2]).all() and (last.vertices[:, 2] < hi[2]).all()
+
+
+def test_trimming_a_plane_by_a_rotated_cube_puts_the_boundary_on_its_faces():
+    cube = trimesh.creation.box(extents=[10.0, 10.0, 10.0])
+    rot = trimesh.transformations.rotation_matrix(0.4, [1, 2, 3])
+    cube.apply_transform(rot)
+    w = 0.5
+    n = 60
+    xs = (np.arange(n) - n / 2) * w
+    gx, gy = np.meshgrid(xs, xs, indexing="ij")
+    plane = trimesh.Trimesh(np.c_[gx.ravel(), gy.ravel(), np.full(n * n, 0.3)], _grid_faces(n), process=False)
+    origin = np.array([xs[0], xs[0], xs[0]])
+    sides = VoxelSides.of(cube, origin, w, (n, n, n))
+    v, f = trim_by_solid(plane.vertices, plane.faces, SolidDistance.of(cube), sides)
+    cut = trimesh.Trimesh(v, f, process=False)
+    local = trimesh.transform_points(v, np.linalg.inv(rot))
+    assert (np.abs(local) <= 5 + 1e-9).all()
+    b = local[_boundary_vertices(cut)]
+    assert np.isclose(np.abs(b).max(axis=1), 5.0, atol=1e-9).all()  # every boundary vertex on a face
+    # the exact section of the cube by the plane is a convex polygon; the cut misses only corner chips
+    polygon_area = cube.section(plane_origin=[0, 0, 0.3], plane_normal=[0, 0, 1]).to_2D()[0].area
+    assert polygon_area - 2 * w**2 <= cut.area <= polygon_area + 1e-9
+    assert np.allclose(cut.face_normals[:, 2], 1.0)
+    assert len(cut.split(only_watertight=False)) == 1
+
+
+def _grid_faces(n: int) -> np.ndarray:
+    i, j = np.meshgrid(np.arange(n - 1), np.arange(n - 1), indexing="ij")
+    a = (i * n + j).ravel()
+    return np.concatenate([np.c_[a, a + n, a + n + 1], np.c_[a, a + n + 1, a + 1]])
+
+
+@pytest.mark.parametrize("solid", ["box", "sphere"])
+def test_signed_distance_matches_the_analytic_one(solid):
+    rng = np.random.default_rng(1)
+    if solid == "box":
+        mesh = trimesh.creation.box(extents=[4.0, 6.0, 8.0])
+        half = np.array([2.0, 3.0, 4.0])
+        # many points near edges and corners, where only the pseudonormal gets the sign right
+        pts = rng.choice([-1, 1], (4000, 3)) * half + rng.normal(scale=0.3, size=(4000, 3))
+        q = np.abs(pts) - half
+        exact = np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
+        tol = 1e-9
+    else:
+        mesh = trimesh.creation.icosphere(subdivisions=5, radius=5.0)
+        pts = rng.normal(size=(4000, 3))
+        pts = pts / np.linalg.norm(pts, axis=1, keepdims=True) * rng.uniform(3.0, 7.0, (4000, 1))
+        exact = np.linalg.norm(pts, axis=1) - 5.0
+        tol = 5.0 * (1 - np.cos(np.pi / 5 / 2**5)) * 2  # the polyhedron's sagitta
+    d, q = SolidDistance.of(mesh)(pts)
+    assert np.abs(d - exact).max() <= tol
+    assert np.allclose(np.abs(d), np.linalg.norm(pts - q, axis=1))
+    ref = trimesh.proximity.closest_point(mesh, pts)[1]
+    assert np.allclose(np.abs(d), ref, atol=1e-9)
+
+
+def test_signed_distance_sign_agrees_with_ray_parity_on_a_real_mesh(shared_model):
+    solid, _ = load_solid(shared_model("kitten"))
+    rng = np.random.default_rng(2)
+    pts = trimesh.sample.sample_surface(solid, 3000, seed=3)[0] + rng.normal(scale=0.5, size=(3000, 3))
+    d, _ = SolidDistance.of(solid)(pts)
+    inside = verify_layers.inside_by_ray_parity(solid, pts)
+    clear = np.abs(d) > 1e-4  # the parity test jitters rays by up to 1e-7 of the model size
+    assert ((d[clear] < 0) == inside[clear]).all()
+
+
+def test_layer_levels_follow_eq_3_2():
+    assert np.allclose(layer_levels(5, 0.8), [1.5, 2.5, 3.5, 4.5, 5.5])
+    # d = 2w: two voxel layers per printed layer, ⌈max G / (d/w)⌉ layers
+    assert np.allclose(layer_levels(5, 0.8, 1.6), [2.5, 4.5, 6.5])
+    with pytest.raises(CurvsliceError):
+        layer_levels(5, 0.8, 0.0)
+
+
+def test_a_jump_in_the_field_carries_no_layers_in_between():
+    """Left half grows one layer per row; the right half waits on row 0 (layer 1), then resumes at
+    layer 10: layers 2-8 have no material on the right, so their surfaces stay on the left."""
+    w = 1.0
+    box = _box([20.5, 10.5, 12.5], [0.0, 0.0, 6.25])
+    grid, growing = _planar(box, w)
+    centres_x = grid.origin[0] + w * np.arange(grid.shape[0])
+    k = np.indices(grid.shape)[2]
+    right = (centres_x > 0)[:, None, None] & (k >= 1)
+    growing = np.where(grid.occupied & right, k + 9, growing).astype(np.int32)
+    layers = extract_working_surfaces(growing, grid.origin, w, box, occupied=grid.occupied)
+    assert layers[0].vertices[:, 0].max() > 9  # layer 1 spans both halves
+    for layer in layers[1:8]:
+        assert layer.vertices[:, 0].max() <= 0.5 + 1e-9
+    assert sum(verify_layers.crossing_pairs(a, b) for a, b in zip(layers[:-1], layers[1:])) == 0
+
+
+def test_missed_voxels_are_bridged_by_the_next_layer():
+    w = 1.0
+    box = _box([12.5, 12.5, 8.5], [0.0, 0.0, 4.25])
+    grid, growing = _planar(box, w)
+    i, j = np.array(grid.shape[:2]) // 2
+    growing[i, j, 4] = 0  # one missed voxel inside
+    layers = extract_working_surfaces(growing, grid.origin, w, box, occupied=grid.occupied)
+    for layer in layers[:-1]:
+        assert len(layer.split(only_watertight=False)) == 1
+        assert layer.area == pytest.approx(12.5 * 12.5, rel=0.01)
+        assert len(trimesh.graph.connected_components(layer.edges_sorted[
+            trimesh.grouping.group_rows(layer.edges_sorted, require_count=1)])) == 1  # no hole
+
+
+def test_open_solid_is_a_user_error():
+    box = _box([5.0, 5.0, 5.0], [0, 0, 2.5])
+    grid, growing = _planar(box, 1.0)
+    open_box = trimesh.Trimesh(box.vertices, box.faces[:-1])
+    with pytest.raises(CurvsliceError, match="closed"):
+        extract_working_surfaces(growing, grid.origin, 1.0, open_box)
+    with pytest.raises(CurvsliceError, match="empty"):
+        extract_working_surfaces(np.zeros_like(growing), grid.origin, 1.0, box)
+
+
+@pytest.fixture(scope="module")
+def kitten_slice(tmp_path_factory):
+    path = shared_models_dir() / "kitten.stl"
+    if not path.exists():
+        pytest.skip(f"shared model {path} not present")
+    out = tmp_path_factory.mktemp("kitten") / "slice"
+    assert main(["slice", str(path), "--voxel", "2.0", "--out", str(out), "--quiet", "--stages", "layers"]) == 0
+    return out
+
+
+def test_real_field_layers_pass_the_verifier(kitten_slice):
+    results = verify_layers.checks(kitten_slice)
+    failed = [c for c in results if not c.passed]
+    assert not failed, failed
+    names = {c.name for c in results}
+    assert {"vertices inside H", "consecutive layers do not cross", "layer spacing"} <= names
+
+
+def test_verifier_catches_broken_layers(kitten_slice, tmp_path):
+    import shutil
+
+    out = tmp_path / "broken"
+    shutil.copytree(kitten_slice, out)
+    files = sorted((out / "layers").glob("layer_*.ply"))
+    # a vertex pushed 1 mm out of the solid, two layers swapped in print order, one flipped, the last lost
+    mesh = trimesh.load(files[5], process=False)
+    solid = trimesh.load(out / "solid.stl")
+    b = _boundary_vertices(mesh)[0]
+    _, _, tid = trimesh.proximity.closest_point(solid, mesh.vertices[[b]])
+    mesh.vertices[b] += 1.0 * solid.face_normals[tid[0]]
+    mesh.export(files[5])
+    a, c = files[10].read_bytes(), files[11].read_bytes()
+    files[10].write_bytes(c)
+    files[11].write_bytes(a)
+    flipped = trimesh.load(files[20], process=False)
+    flipped.invert()
+    flipped.export(files[20])
+    files[-1].unlink()
+    failed = {r.name for r in verify_layers.checks(out) if not r.passed}
+    assert {"one file per layer", "vertices inside H", "each layer lies on its own voxels",
+            "normals towards later layers"} <= failed
+
+
+def test_crossing_test_sees_crossing_planes_only():
+    def plane(tilt: float, z: float) -> trimesh.Trimesh:
+        n = 12
+        g = np.stack(np.meshgrid(np.linspace(-5, 5, n), np.linspace(-5, 5, n), indexing="ij"), -1).reshape(-1, 2)
+        return trimesh.Trimesh(np.c_[g, z + tilt * g[:, 0]], _grid_faces(n), process=False)
+
+    assert verify_layers.crossing_pairs(plane(0.0, 0.0), plane(0.0, 0.3)) == 0
+    assert verify_layers.crossing_pairs(plane(0.0, 0.0), plane(0.1, 0.3)) > 0
+
+
+def test_slice_cli_rejects_a_bad_layer_height(shared_model, tmp_path, capsys):
+    code = main(["slice", str(shared_model("kitten")), "--voxel", "3", "--layer-height", "-1",
+                 "--out", str(tmp_path / "o"), "--quiet"])
+    assert code == 2
+    assert "layer height" in capsys.readouterr().err
+
+
+def test_layers_are_written_in_print_order(tmp_path):
+    box = _box([6.5, 6.5, 4.5], [0, 0, 2.25])
+    grid, growing = _planar(box, 1.0)
+    layers = extract_working_surfaces(growing, grid.origin, 1.0, box, occupied=grid.occupied)
+    paths = write_layers(tmp_path, layers)
+    assert [p.name for p in paths] == [f"layer_{i:04d}.ply" for i in range(1, len(layers) + 1)]
+    heights = [trimesh.load(p).vertices[:, 2].mean() for p in paths]
+    assert np.all(np.diff(heights) > 0)
