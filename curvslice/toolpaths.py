@@ -538,9 +538,12 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
                 fill_gaps: bool = True) -> LayerPaths:
     """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
     :func:`gap_passes` through what they leave open when ``fill_gaps``. Holes narrower than
-    ``_BRIDGE`` widths are bridged (:func:`bridge_small_holes`)."""
+    ``_BRIDGE`` widths are bridged (:func:`bridge_small_holes`); a mesh coarser than half a width
+    is subdivided once (1 → 4 triangles) so the distance field and contours resolve the passes."""
     surface = clean_surface(mesh)
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, _BRIDGE * np.pi * width)
+    if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > 0.5 * width:
+        v, f = trimesh.remesh.subdivide(v, f)  # finer heat step (t = h²) and contours than the voxels
     if len(f) == 0:
         return LayerPaths(pieces=[])
     dist = boundary_distance(v, f)

@@ -72,7 +72,7 @@ def test_contour_rings_of_a_disc_are_circles_with_the_inside_on_the_left():
 def test_flat_square_is_one_spiral_with_passes_one_width_apart():
     width = 1.0
     mesh = polygon_mesh(sg.box(0, 0, 30, 30), 0.6)
-    result = layer_paths(mesh, width)
+    result = layer_paths(mesh, width, fill_gaps=False)  # (gap passes may add the four corners)
     assert len(result.pieces) == 1 and result.jumps == 0
     path = resample(result.pieces[0], 1.0)
     assert _self_intersections(path) == 0
@@ -91,7 +91,7 @@ def test_flat_square_is_one_spiral_with_passes_one_width_apart():
     gaps = np.diff(along)
     assert len(along) >= 13
     assert np.all(np.abs(gaps - width) <= 0.1 * width), gaps
-    assert 15.0 - along.max() == pytest.approx(0.5 * width, abs=0.1 * width)  # outer pass half a width in
+    assert 15.0 - along.max() == pytest.approx(0.45 * width, abs=0.1 * width)  # outer pass 0.45 w in
 
 
 @pytest.mark.parametrize("name", ["disc", "annulus", "offset-annulus", "dumbbell", "saddle"])
