@@ -194,7 +194,7 @@ def _downstream(rec: Recorder, solid, grid, growing, platform, robot: str | None
                           "triangles": int(sum(len(m.faces) for m in layers))}
     cleaned = [clean_surface(m) for m in layers]
     rec.run("geodesics", lambda: [boundary_distance(m.vertices, m.faces) for m in cleaned if len(m.faces)])
-    settings = ToolpathSettings()
+    settings = ToolpathSettings(path_width=grid.voxel_size / 0.8)  # the default of `curvslice slice`
     tp = rec.run("toolpaths", lambda: plan_toolpaths(layers, settings),
                  lambda t: {"spirals": t.seconds["spirals"], "orientation": t.seconds["orientation"]})
     counts["toolpaths"] = {"samples": int(len(tp.positions)), "pieces": int(len(np.unique(tp.path))),

@@ -17,15 +17,12 @@ from matplotlib.image import imread
 from scipy import ndimage
 
 from curvslice.cli import main
-from curvslice.cli.slice import STAGES
 from curvslice.errors import CurvsliceError
 from curvslice.exporters.joints_csv import write_joints_csv
 from curvslice.kinematics import fk_reference, load_robot
-from curvslice.toolpaths import ToolpathSettings, plan_toolpaths, save_toolpaths
 from curvslice.viz import (build_scene, layer_colors, open_viewer, path_segments, preview_png,
                            read_slice_folder, voxel_layer_faces)
 from curvslice.workcell import load_workcell, save_workcell
-from curvslice.working_surfaces import extract_working_surfaces, write_layers
 
 REPO = Path(__file__).resolve().parents[1]
 CHROMIUM = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -77,17 +74,8 @@ def tee_folder(tmp_path_factory) -> Path:
     """tee.stl at 2 mm with surfaces and tool-paths, and a synthetic robot trajectory
     (UR5 workcell, a smooth joint sweep) so the robot part of the scene is exercised too."""
     out = tmp_path_factory.mktemp("viz") / "tee"
-    names = [s for s, _ in STAGES]
-    stage = "toolpaths" if "toolpaths" in names else names[-1]
     assert main(["slice", str(REPO / "models" / "tee.stl"), "--voxel", "2", "--out", str(out),
-                 "--stages", stage, "--preview", "--quiet"]) == 0
-    folder = read_slice_folder(out)
-    if not folder.layers:  # stages not yet wired into `slice`: make their files with the library
-        write_layers(out, extract_working_surfaces(folder.growing, folder.origin, folder.voxel_size,
-                                                   folder.solid, occupied=folder.occupied))
-    if folder.toolpaths is None:
-        settings = ToolpathSettings(path_width=2.0)
-        save_toolpaths(out, plan_toolpaths(read_slice_folder(out).layers, settings), settings)
+                 "--stages", "toolpaths", "--preview", "--quiet"]) == 0
     cell = load_workcell("ur5")
     save_workcell(cell, out / "workcell.json")
     s = np.linspace(0, 1, 40)[:, None]
