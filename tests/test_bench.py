@@ -116,3 +116,9 @@ def test_quick_bench_writes_markdown_and_plot(quick_run):
     img = imread(out / "results.png")[..., :3]
     assert img.shape[0] > 400 and img.shape[1] > 1000
     assert (img.std(axis=2) > 0.1).mean() > 0.01  # coloured bars and lines, not a blank canvas
+
+
+def test_bench_refuses_unknown_models_in_one_line(capsys, tmp_path):
+    assert main(["bench", "--quick", "--models", "bunny", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "choose from tee, arch" in err[0]

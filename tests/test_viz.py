@@ -199,3 +199,13 @@ def test_preview_rejects_a_layer_without_tool_paths(tee_folder, tmp_path):
     assert len(vivid) > 200
     nearest = np.argmin(np.linalg.norm(vivid[:, None] / 255 - colours[None], axis=-1), axis=1) + 1
     assert abs(np.median(nearest) - layer) <= 2
+
+
+def test_view_command_writes_the_scene_page_and_refuses_a_non_slice_folder(tee_folder, tmp_path, capsys):
+    page = tmp_path / "scene.html"
+    assert main(["view", str(tee_folder), "--html", str(page)]) == 0
+    paths = {c["path"] for c in _scene_commands(page.read_text()) if c["type"] == "set_object"}
+    assert "/meshcat/curvslice/part/solid" in paths and any("/voxels/layer_" in p for p in paths)
+    assert "MeshCat.Viewer" in page.read_text()  # self-contained: the viewer's script is embedded
+    assert main(["view", str(tmp_path)]) == 2
+    assert "not a slice folder" in capsys.readouterr().err
