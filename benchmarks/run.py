@@ -19,9 +19,12 @@ import json
 import os
 import platform
 import re
+import signal
 import tempfile
+import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -85,15 +88,43 @@ def _reset_peak() -> bool:
         return False
 
 
+class StageTimeout(Exception):
+    """A stage ran past the suite's per-stage time limit and was stopped."""
+
+
+@contextmanager
+def _deadline(seconds: float | None) -> Iterator[None]:
+    """Raise :class:`StageTimeout` in the block after ``seconds`` (SIGALRM; main thread only)."""
+    if not seconds or not hasattr(signal, "setitimer") or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def stop(signum, frame):
+        raise StageTimeout
+
+    old = signal.signal(signal.SIGALRM, stop)
+    signal.setitimer(signal.ITIMER_REAL, seconds)
+    try:
+        yield
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0)
+        signal.signal(signal.SIGALRM, old)
+
+
 @dataclass
 class StageResult:
-    """Wall times of the repetitions of one stage and its peak memory (MB; None if unknown)."""
+    """Wall times of the repetitions of one stage and its peak memory (MB; None if unknown);
+    ``timeout_s`` is set when the stage was stopped at the time limit (then ``times`` is empty)."""
 
     times: list[float] = field(default_factory=list)
     peak_rss_mb: float | None = None
     peak_above_start_mb: float | None = None
+    timeout_s: float | None = None
 
     def summary(self) -> dict[str, object]:
+        if not self.times:
+            return {"times_s": [], "reps": 0, "median_s": None, "min_s": None, "max_s": None,
+                    "peak_rss_mb": None, "peak_above_start_mb": None, "timeout_s": self.timeout_s}
         t = np.asarray(self.times, float)
         return {
             "times_s": [round(float(x), 4) for x in t], "reps": len(t),
@@ -111,18 +142,28 @@ class Recorder:
     repeat: int = 3
     budget: float = 20.0
     quiet: bool = False
+    timeout: float | None = None
     stages: dict[str, StageResult] = field(default_factory=dict)
 
     def run(self, key: str, fn: Callable[[], object], derived: Callable[[object], dict[str, float]] | None = None):
         """Run ``fn`` up to ``repeat`` times (at least once); return its last result. ``derived``
-        maps a result to sub-stage seconds recorded beside (e.g. dual contouring inside surfaces)."""
+        maps a result to sub-stage seconds recorded beside (e.g. dual contouring inside surfaces).
+        Raises :class:`StageTimeout` (after recording it) when the first run passes ``timeout`` s."""
         res = StageResult()
         result = None
         while len(res.times) < max(1, self.repeat) and (not res.times or sum(res.times) < self.budget):
             start_rss = _status_mb("VmRSS")
             reset = _reset_peak()
             t0 = time.perf_counter()
-            result = fn()
+            try:
+                with _deadline(None if res.times else self.timeout):
+                    result = fn()
+            except StageTimeout:
+                res.timeout_s = self.timeout
+                self.stages[key] = res
+                if not self.quiet:
+                    print(f"  {STAGE_LABELS.get(key, key):36s} stopped after {self.timeout:g} s", flush=True)
+                raise
             res.times.append(time.perf_counter() - t0)
             peak = _status_mb("VmHWM") if reset else None
             if peak is not None:
@@ -151,15 +192,16 @@ def robot_subset(toolpaths, target: int) -> np.ndarray:
 
 def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, robot: str | None = "ur5",
              robot_waypoints: int = ROBOT_WAYPOINTS, downstream: bool = True, repeat: int = 3,
-             budget: float = 20.0, quiet: bool = False) -> dict[str, object]:
-    """All stages on one model at one voxel size; returns the case's JSON record."""
+             budget: float = 20.0, timeout: float | None = None, quiet: bool = False) -> dict[str, object]:
+    """All stages on one model at one voxel size; returns the case's JSON record. A stage stopped at
+    ``timeout`` is recorded as such; the stages that need its result are then left out."""
     from curvslice.growing_field import growing_field
     from curvslice.peeling_field import peeling_field
     from curvslice.platform import disc_platform
     from curvslice.solid import load_solid
     from curvslice.voxelize import voxelize
 
-    rec = Recorder(repeat=repeat, budget=budget, quiet=quiet)
+    rec = Recorder(repeat=repeat, budget=budget, quiet=quiet, timeout=timeout)
     if not quiet:
         print(f"{model.stem} @ {voxel} mm", flush=True)
     solid, _ = rec.run("load", lambda: load_solid(model))
@@ -170,22 +212,28 @@ def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, r
     counts["max_peeling"] = int(peel.max())
     growing = None
     for method in methods:
-        g, stats = rec.run(f"growing_{method}", lambda m=method: growing_field(grid, platform.vertices, m, peeling=peel))
+        try:
+            g, stats = rec.run(f"growing_{method}", lambda m=method: growing_field(grid, platform.vertices, m, peeling=peel))
+        except StageTimeout:
+            continue
         counts[method] = {"layers": stats.layers, "missed": stats.missed, "shadow_tests": stats.shadow_tests}
         if method == "pg-sp-gcfa" or growing is None:
             growing = g
-    if downstream:
-        counts.update(_downstream(rec, solid, grid, growing, platform, robot, robot_waypoints))
+    if downstream and growing is not None:
+        try:
+            _downstream(rec, solid, grid, growing, platform, robot, robot_waypoints, counts)
+        except StageTimeout:
+            pass
     return {"model": model.stem, "voxel_mm": voxel, "counts": counts,
             "stages": {k: v.summary() for k, v in rec.stages.items()}}
 
 
-def _downstream(rec: Recorder, solid, grid, growing, platform, robot: str | None, robot_waypoints: int) -> dict[str, object]:
+def _downstream(rec: Recorder, solid, grid, growing, platform, robot: str | None, robot_waypoints: int,
+                counts: dict[str, object]) -> None:
     from curvslice.geodesic import boundary_distance
     from curvslice.toolpaths import ToolpathSettings, clean_surface, plan_toolpaths, save_toolpaths
     from curvslice.working_surfaces import extract_working_surfaces
 
-    counts: dict[str, object] = {}
     layers = rec.run(
         "surfaces", lambda: extract_working_surfaces(growing, grid.origin, grid.voxel_size, solid, occupied=grid.occupied),
         lambda ls: {"dual_contouring": sum(m.metadata["dc_seconds"] for m in ls),
@@ -210,7 +258,6 @@ def _downstream(rec: Recorder, solid, grid, growing, platform, robot: str | None
 
                 write_robot_outputs(Path(tmp), cell, family, tpd, motion)
         rec.run("export", export)
-    return counts
 
 
 def _robot(rec: Recorder, tp, layers, platform, robot_name: str, target: int, counts: dict):
@@ -290,7 +337,7 @@ def _model_path(name: str, quick: bool) -> Path:
 
 def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, methods: tuple[str, ...] = METHODS,
               robot: str | None = "ur5", models: tuple[str, ...] | None = None, sweep: bool = True,
-              quiet: bool = False) -> dict[str, object]:
+              timeout: float | None = None, quiet: bool = False) -> dict[str, object]:
     """Standard cases (+ the size sweep) → the JSON record written by :func:`write_outputs`."""
     standard = QUICK_STANDARD if quick else STANDARD
     if models:
@@ -302,7 +349,7 @@ def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, met
     target = QUICK_ROBOT_WAYPOINTS if quick else ROBOT_WAYPOINTS
     out: dict[str, object] = {
         "suite": "quick" if quick else "full", "machine": machine(),
-        "settings": {"repeat": repeat, "budget_s": budget, "methods": list(methods), "robot": robot,
+        "settings": {"repeat": repeat, "budget_s": budget, "timeout_s": timeout, "methods": list(methods), "robot": robot,
                      "robot_waypoints": target, "standard": [list(c) for c in standard],
                      "sweep": {"model": sweep_model, "voxels_mm": list(sweep_sizes)} if sweep else None},
         "standard": [], "sweep": [],
@@ -310,11 +357,11 @@ def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, met
     start = time.perf_counter()
     for name, voxel in standard:
         out["standard"].append(run_case(_model_path(name, quick), voxel, methods=methods, robot=robot,
-                                        robot_waypoints=target, repeat=repeat, budget=budget, quiet=quiet))
+                                        robot_waypoints=target, repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
     if sweep:
         for voxel in sweep_sizes:
             out["sweep"].append(run_case(_model_path(sweep_model, quick), voxel, methods=("pg-sp-gcfa",), robot=None,
-                                         repeat=repeat, budget=budget, quiet=quiet))
+                                         repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
     out["machine"]["loadavg_end"] = list(os.getloadavg())
     out["wall_s"] = round(time.perf_counter() - start, 1)
     return out
@@ -344,6 +391,8 @@ def _fmt(x: float | None) -> str:
 def _cell(stage: dict | None) -> str:
     if stage is None:
         return "–"
+    if stage["median_s"] is None:
+        return f"> {_fmt(stage['timeout_s'])} (stopped)"
     if stage["reps"] == 1:
         return _fmt(stage["median_s"])
     return f"{_fmt(stage['median_s'])} ({_fmt(stage['min_s'])}–{_fmt(stage['max_s'])}, n={stage['reps']})"
@@ -377,7 +426,9 @@ def markdown(result: dict[str, object]) -> str:
         f"Regenerate with `curvslice bench{flag}` (or `python -m benchmarks{flag}`). Every stage is a library call "
         "timed on its own; a stage is repeated in place up to "
         f"{st['repeat']} times while its total stays under {st['budget_s']:g} s, so cells read "
-        "`median (min–max, n)`, or one figure when it ran once. Seconds, wall clock.", "",
+        "`median (min–max, n)`, or one figure when it ran once. Seconds, wall clock. "
+        + (f"A stage still running after {st['timeout_s']:g} s is stopped ('stopped'), and the stages needing "
+           "its result are left out." if st.get("timeout_s") else ""), "",
         "## Machine", "",
         f"- CPU: {m['cpu']}, {m['nproc']} cores available; memory {m['memory_gb']} GB",
         f"- Python {m['python']}, numpy {m['numpy']}, scipy {m['scipy']}, trimesh {m['trimesh']}; {m['platform']}",
@@ -452,7 +503,7 @@ def markdown(result: dict[str, object]) -> str:
               "|---|---|---|---|---|---|---|---|"]
     for (model, voxel, method), ref in AUTHORS_CPP.items():
         c = next((c for c in cases if c["model"] == model), None)
-        if c is None or f"growing_{method}" not in c["stages"]:
+        if c is None or method not in c["counts"]:
             continue
         n = c["counts"]
         note = "" if abs(c["voxel_mm"] - voxel) < 1e-9 else f" (ours @{c['voxel_mm']:g} mm)"
@@ -507,7 +558,7 @@ def markdown(result: dict[str, object]) -> str:
 def sweep_exponent(sweep: list[dict], key: str) -> float | None:
     """Least-squares slope of log t against log voxels over the sweep (None below two sizes)."""
     pts = [(c["counts"]["voxels"], c["stages"][key]["median_s"]) for c in sweep if key in c["stages"]]
-    pts = [(v, t) for v, t in pts if v > 0 and t > 0]
+    pts = [(v, t) for v, t in pts if v > 0 and t is not None and t > 0]
     if len(pts) < 2:
         return None
     x, y = np.log([p[0] for p in pts]), np.log([p[1] for p in pts])
@@ -527,7 +578,7 @@ def plot(result: dict[str, object], path: Path) -> Path:
     h = 0.8 / max(len(cases), 1)
     for i, c in enumerate(cases):
         y = np.arange(len(keys)) + i * h
-        t = [c["stages"][k]["median_s"] if k in c["stages"] else np.nan for k in keys]
+        t = [np.nan if c["stages"].get(k, {}).get("median_s") is None else c["stages"][k]["median_s"] for k in keys]
         ax.barh(y, t, height=h, color=colors[i], label=f"{_case_title(c)} ({c['counts']['voxels']:,} vx)")
     ax.set_yticks(np.arange(len(keys)) + 0.4 - h / 2, [STAGE_LABELS[k] for k in keys], fontsize=8)
     ax.invert_yaxis()
@@ -541,8 +592,10 @@ def plot(result: dict[str, object], path: Path) -> Path:
         cmap = colormaps["tab20"]
         v = np.array([c["counts"]["voxels"] for c in sweep], float)
         for j, k in enumerate(skeys):
-            t = np.array([c["stages"][k]["median_s"] for c in sweep])
+            t = np.array([np.nan if c["stages"][k]["median_s"] is None else c["stages"][k]["median_s"] for c in sweep])
             slope = sweep_exponent(sweep, k)
+            if slope is None:
+                continue
             ax.loglog(v, t, "o-", color=cmap(j % 20), label=f"{STAGE_LABELS[k]} (slope {slope:.2f})")
         ax.set_xlabel("voxels")
         ax.set_ylabel("median wall time (s)")
@@ -564,6 +617,8 @@ def add_arguments(p) -> None:
                    "suite, ./bench_quick for --quick)")
     p.add_argument("--repeat", type=int, default=3, help="repetitions per stage (while under --budget)")
     p.add_argument("--budget", type=float, default=20.0, help="stop repeating a stage once its runs total this many seconds")
+    p.add_argument("--stage-timeout", type=float, default=900.0, help="stop a stage after this many seconds (0: never) "
+                   "and leave out the stages that need its result")
     p.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS, help="growing-field methods to time")
     p.add_argument("--models", nargs="+", help="only these standard models")
     p.add_argument("--robot", default="ur5", help="workcell for the robot stages; 'none' skips them")
@@ -577,7 +632,8 @@ def execute(args) -> int:
         raise CurvsliceError("--repeat must be at least 1 and --budget non-negative")
     result = run_suite(quick=args.quick, repeat=args.repeat, budget=args.budget, methods=tuple(args.methods),
                        robot=None if str(args.robot).lower() == "none" else args.robot,
-                       models=tuple(args.models) if args.models else None, sweep=not args.no_sweep, quiet=args.quiet)
+                       models=tuple(args.models) if args.models else None, sweep=not args.no_sweep,
+                       timeout=args.stage_timeout or None, quiet=args.quiet)
     out = Path(args.out) if args.out else (Path.cwd() / "bench_quick" if args.quick else REPO / "benchmarks")
     for path in write_outputs(result, out):
         print(f"wrote {path}")

@@ -12,7 +12,7 @@ import pytest
 from matplotlib.image import imread
 
 from benchmarks.paper import AUTHORS_CPP, TABLE_3_1
-from benchmarks.run import DERIVED, STAGE_LABELS, Recorder, markdown, robot_subset, sweep_exponent
+from benchmarks.run import DERIVED, STAGE_LABELS, Recorder, StageTimeout, markdown, robot_subset, sweep_exponent
 from curvslice.cli import main
 
 
@@ -31,6 +31,17 @@ def test_recorder_repeats_within_budget_and_measures_memory():
     if peak is None:
         pytest.skip("no /proc/self/clear_refs here")
     assert 250 < peak < 1000
+
+
+def test_recorder_stops_a_stage_at_the_time_limit():
+    rec = Recorder(repeat=3, timeout=0.2, quiet=True)
+    t0 = time.perf_counter()
+    with pytest.raises(StageTimeout):
+        rec.run("stuck", lambda: time.sleep(30))
+    assert time.perf_counter() - t0 < 5
+    s = rec.stages["stuck"].summary()
+    assert s["reps"] == 0 and s["median_s"] is None and s["timeout_s"] == 0.2
+    assert rec.run("next", lambda: 7) == 7  # the alarm is off again
 
 
 def test_sweep_exponent_recovers_a_power_law():
