@@ -3,21 +3,25 @@ Fig. 3.8, Eq. 3.2).
 
 For every layer l (print order) the surface S_l is built in three steps:
 
-1. **Continued field.** G is an integer per voxel of H̄ (0 = empty or missed). Empty voxels within two
-   voxels of H̄ (and missed voxels) receive one more growth step, G = 1 + min over their 18 AM-stable
-   neighbours (Definition 1, the growth rule of Alg. 1 applied to empty space); the platform below
-   z = 0 is layer 0. Every isosurface then reaches past H̄ ⊇ H, so its untrimmed boundary lies
-   outside H (§3.4.5: "as long as ∂S* is always outside H"). On an edge leaving H̄ a crossing is
-   kept in the empty voxel's half, so the continuation never bends layers inside H.
-2. **Dual contouring** (Ju et al. 2002, the thesis's [52]) at the isovalue of layer l: Hermite data
-   from linear interpolation on the narrow band of grid edges whose end values bracket the isovalue,
-   normals by central finite differences of G; one vertex per sign-changing cell from the QEF
-   (truncated pseudo-inverse around the mass point, clamped to its cell); one quad per crossing
-   edge, split along its shorter diagonal and oriented along +∇G (towards later layers).
+1. **Continued field.** G is an integer per voxel of H̄ (0 = empty or missed). Missed voxels get the
+   layer the growth would have given them next (1 + the least G of their 18 AM-stable neighbours,
+   Definition 1, Alg. 1's rule); two rings of empty voxels around H̄ get a first-order extrapolation
+   of G from their neighbours; the platform below z = 0 is layer 0. Every isosurface then reaches
+   past H̄ ⊇ H, so its untrimmed boundary lies outside H (§3.4.5: "as long as ∂S* is always outside
+   H"). On an edge leaving H̄ a crossing stays in the empty voxel's half, outside H.
+2. **Dual contouring** (Ju et al. 2002, the thesis's [52]) at the isovalue of layer l on its narrow
+   band: the grid edges whose end values bracket the isovalue, except that a jump between grown
+   voxels (G = a → b ≥ a + 2, common in governed growth) carries only the layers owning its ends —
+   no material of layers a+1 … b−1 lies there, and linear isosurfaces would stack b − a − 1 sheets
+   1/(b − a) voxel apart. Hermite normals by central finite differences of G; one vertex per
+   sign-changing cell from the QEF (truncated pseudo-inverse around the mass point, the vertex kept
+   in the bounding box of its cell's Hermite points); one quad per crossing edge, split along its
+   shorter diagonal and oriented along +∇G (towards later layers).
 3. **Trimming by H**: vertices are classified by an exact signed distance to ∂H (closest triangle
    feature + angle-weighted pseudonormal, Bærentzen & Aanæs 2005; voxels untouched by ∂H decide in
    bulk), triangles are clipped along the zero set, and every new boundary vertex is placed on ∂H by
-   regula falsi on the signed distance, so ∂S_l ⊂ ∂H.
+   regula falsi on the signed distance. So ∂S_l lies on ∂H, except where layer l's own voxels end
+   inside H (next to a jump of G).
 
 **Isovalues (Eq. 3.2).** g_i = (i − ½)·s in units of G, with s = d / w G-steps per printed layer
 (d = layer height, default w, so g_i = i − ½). The thesis prints the factor as w/d, which would give
@@ -46,6 +50,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from curvslice.errors import CurvsliceError
+from curvslice.growing_field import ASN_OFFSETS
 from curvslice.voxelize import _interior_winding, _surface_voxels
 
 #: Voxels of padding around the field grid (continuation ring, gradient stencil, platform rows).
@@ -66,7 +71,7 @@ ROOT_ITERATIONS = 40
 
 @dataclass(frozen=True)
 class ContinuedField:
-    """G continued one growth step around H̄ on a grid padded by :data:`PAD` voxels.
+    """G continued around H̄ (and into missed voxels) on a grid padded by :data:`PAD` voxels.
 
     ``values`` float (NaN where unknown), ``gradient`` (…, 3) per mm, ``domain`` nodes usable as
     cell corners, ``solid_nodes`` the voxels of H̄, ``grown`` those with G > 0, ``origin`` the centre
@@ -128,7 +133,9 @@ def _extrapolate_ring(values: np.ndarray, target: np.ndarray) -> np.ndarray:
 def _grow_into(values: np.ndarray, missed: np.ndarray) -> None:
     """Give missed voxels the layer the growth would have given them next: 1 + the smallest G of
     their 18 AM-stable neighbours (Alg. 1's rule), front by front, in place."""
-    footprint = np.add.outer(np.add.outer(*[np.abs(np.arange(-1, 2))] * 2), np.abs(np.arange(-1, 2))) <= 2
+    footprint = np.zeros((3, 3, 3), bool)
+    footprint[tuple((ASN_OFFSETS + 1).T)] = True
+    footprint[1, 1, 1] = True
     while missed.any():
         known = np.where(np.isfinite(values), values, np.inf)
         nxt = ndimage.minimum_filter(known, footprint=footprint, mode="constant", cval=np.inf) + 1.0
@@ -274,8 +281,6 @@ def dual_contour(field: ContinuedField, level: float, band: tuple[float, float] 
         bx, cx = strides[(axis + 1) % 3], strides[(axis + 2) % 3]
         quads.append(np.stack([a, a - bx, a - bx - cx, a - cx], axis=1))  # CCW about +axis
         up.append(fa <= level)
-    if not pts:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
     p = np.concatenate(pts)
     n = np.concatenate(nrm)
     quads = np.concatenate(quads)
