@@ -20,7 +20,7 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9):
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 from time import perf_counter
 
@@ -83,7 +83,6 @@ class LayerPaths:
     bridged_holes: int = 0
     travel: float = 0.0
     max_distance: float = 0.0
-    stats: dict[str, float] = field(default_factory=dict)
 
     @property
     def jumps(self) -> int:
@@ -748,7 +747,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
                "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
                "splices": paths.splices, "failed_splices": paths.failed_splices,
                "closed_components": paths.closed_components, "gap_passes": paths.gap_passes,
-               "bridged_holes": paths.bridged_holes,
+               "bridged_holes": paths.bridged_holes, "max_distance_mm": round(paths.max_distance, 3),
                "samples": 0, "length_mm": 0.0}
         if samples:
             q = np.vstack(samples)
