@@ -265,7 +265,8 @@ def dual_contour(field: ContinuedField, level: float, band: tuple[float, float] 
             jump = grown[a] & grown[b] & (f_hi - f_lo >= 2)
             lo_in = (f_lo > band[0]) & (f_lo <= band[1])
             hi_in = (f_hi > band[0]) & (f_hi <= band[1])
-            from_lo = np.clip(np.where(lo_in, level - f_lo, 1 - (f_hi - level)), 0.0, 1.0)
+            # measured from the low end, one G-step per voxel, kept in the owning voxel's half
+            from_lo = np.where(lo_in, np.clip(level - f_lo, 0.0, 0.5), np.clip(1 - (f_hi - level), 0.5, 1.0))
             t = np.where(jump, np.where(fa < fb, from_lo, 1 - from_lo), t)
             keep = ~jump | lo_in | hi_in
             a, b, fa, fb, t = a[keep], b[keep], fa[keep], fb[keep], t[keep]

@@ -187,6 +187,16 @@ def test_layer_levels_follow_eq_3_2():
         layer_levels(5, 0.8, 0.0)
 
 
+def test_thicker_layers_span_several_voxel_rows():
+    w = 0.5
+    box = _box([8.3, 6.3, 5.2], [0.0, 0.0, 2.6])
+    grid, growing = _planar(box, w)
+    layers = extract_working_surfaces(growing, grid.origin, w, box, layer_height=3 * w, occupied=grid.occupied)
+    assert len(layers) == int(np.ceil(growing.max() / 3))
+    for layer in layers[:-1]:
+        assert np.allclose(layer.vertices[:, 2], 3 * w * layer.metadata["layer"], atol=1e-9)
+
+
 def test_a_jump_in_the_field_carries_no_layers_in_between():
     """Left half grows one layer per row; the right half waits on row 0 (layer 1), then resumes at
     layer 10: layers 2-8 have no material on the right, so their surfaces stay on the left."""

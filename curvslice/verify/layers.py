@@ -44,7 +44,8 @@ PAIR_SAMPLES = 10
 #: governed fields), over perpendicular feet nearer than SPACING_REACH voxel widths.
 EARLIER = 4
 SPACING_REACH = 3.0
-#: Plausible mean layer spacing (voxel widths); the thesis measured about 1.25 w (Fig. 3.18).
+#: Plausible mean layer spacing (voxel widths per G-step of a layer); the thesis measured about
+#: 1.25 w (Fig. 3.18).
 SPACING_RANGE = (0.5, 2.5)
 SAMPLES_PER_W2 = 1.0
 MAX_SAMPLES = 2000
@@ -173,10 +174,14 @@ def layer_spacing(earlier: trimesh.Trimesh, later: trimesh.Trimesh, voxel_size: 
     return dist[sel], agree[sel]
 
 
-def layer_material(solid: trimesh.Trimesh, growing: np.ndarray, origin: np.ndarray, voxel_size: float,
-                   layer: int) -> float:
-    """Volume of H inside the voxels of ``layer`` (in voxel volumes), from a lattice of samples."""
-    ijk = np.argwhere(growing == layer)
+def layer_voxels(growing: np.ndarray, layer: int, step: float) -> np.ndarray:
+    """Voxels printed in ``layer`` when each layer spans ``step`` values of G (Eq. 3.2, d = step·w)."""
+    return (growing > (layer - 1) * step + 0.5) & (growing <= layer * step + 0.5)
+
+
+def layer_material(solid: trimesh.Trimesh, voxels: np.ndarray, origin: np.ndarray, voxel_size: float) -> float:
+    """Volume of H inside the given voxels (in voxel volumes), from a lattice of samples."""
+    ijk = np.argwhere(voxels)
     if len(ijk) == 0:
         return 0.0
     k = MATERIAL_LATTICE
@@ -199,13 +204,13 @@ def jump_voxels(growing: np.ndarray, occupied: np.ndarray) -> np.ndarray:
     return out
 
 
-def _near_own_voxels(mesh: trimesh.Trimesh, growing: np.ndarray, origin: np.ndarray, w: float,
-                     layer: int, seed: int = 0) -> np.ndarray:
-    """For area-uniform samples of a layer file: is a voxel of that layer of G within one voxel
+def _near_own_voxels(mesh: trimesh.Trimesh, voxels: np.ndarray, origin: np.ndarray, w: float,
+                     seed: int = 0) -> np.ndarray:
+    """For area-uniform samples of a layer file: is a voxel of that layer within one voxel
     (Chebyshev) of the sample's nearest voxel?"""
     n = int(np.clip(mesh.area * SAMPLES_PER_W2 / w**2, 1, MAX_SAMPLES))
     pts = trimesh.sample.sample_surface(mesh, n, seed=seed)[0]
-    own = np.pad(growing == layer, 1)
+    own = np.pad(voxels, 1)
     base = np.rint((pts - origin) / w).astype(np.int64) + 1
     hit = np.zeros(len(pts), bool)
     for d in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
@@ -237,9 +242,9 @@ def checks(outdir: Path) -> list[Check] | None:
     results.append(Check(STAGE, "one file per layer", len(files) == expected,
                          f"{len(files)} of {expected}", "" if len(files) == expected else "layers missing"))
     empty = [i + 1 for i, m in enumerate(layers) if len(m.faces) == 0]
-    material = {layer: layer_material(solid, growing, origin, w, layer) for layer in empty} if step == 1.0 else {}
-    lost = [layer for layer in empty if material.get(layer, np.inf) >= EMPTY_MATERIAL]
-    detail = ", ".join(f"{layer}: {material.get(layer, float('nan')):.2f} voxels of material" for layer in empty[:10])
+    material = {layer: layer_material(solid, layer_voxels(growing, layer, step), origin, w) for layer in empty}
+    lost = [layer for layer in empty if material[layer] >= EMPTY_MATERIAL]
+    detail = ", ".join(f"{layer}: {material[layer]:.2f} voxels of material" for layer in empty[:10])
     results.append(Check(STAGE, "a surface for every layer with material", not lost,
                          f"{len(empty)} empty, {len(lost)} with material", detail))
     live = [m for m in layers if len(m.faces)]
@@ -274,13 +279,13 @@ def checks(outdir: Path) -> list[Check] | None:
     results.append(Check(STAGE, "consecutive layers do not cross", not bad, f"{sum(crossings)} pairs",
                          f"between layers {bad[:10]} and the next" if bad else ""))
 
-    if step == 1.0:
-        near = {i + 1: _near_own_voxels(m, growing, origin, w, i + 1) for i, m in enumerate(layers) if len(m.faces)}
-        share = float(np.mean(np.concatenate(list(near.values()))))
-        worst_layer = min(near, key=lambda k: near[k].mean())
-        results.append(Check(STAGE, "each layer lies on its own voxels", share >= OWN_VOXELS_SHARE,
-                             f"{100 * share:.2f}%", f"of samples within one voxel of a voxel of their layer; "
-                             f"worst layer {worst_layer}: {100 * near[worst_layer].mean():.0f}%"))
+    near = {i + 1: _near_own_voxels(m, layer_voxels(growing, i + 1, step), origin, w)
+            for i, m in enumerate(layers) if len(m.faces)}
+    share = float(np.mean(np.concatenate(list(near.values()))))
+    worst_layer = min(near, key=lambda k: near[k].mean())
+    results.append(Check(STAGE, "each layer lies on its own voxels", share >= OWN_VOXELS_SHARE,
+                         f"{100 * share:.2f}%", f"of samples within one voxel of a voxel of their layer; "
+                         f"worst layer {worst_layer}: {100 * near[worst_layer].mean():.0f}%"))
 
     dists, agree, worst = [], [], (np.inf, 0)
     for i in range(1, len(layers)):
@@ -301,6 +306,6 @@ def checks(outdir: Path) -> list[Check] | None:
         hist, edges = np.histogram(d, bins=np.arange(0, SPACING_REACH + 0.01, 0.25))
         shares = ", ".join(f"{lo:g}-{hi:g}: {100 * h / len(d):.1f}%" for lo, hi, h in zip(edges[:-1], edges[1:], hist))
         mean = float(d.mean())
-        results.append(Check(STAGE, "layer spacing", SPACING_RANGE[0] <= mean <= SPACING_RANGE[1],
+        results.append(Check(STAGE, "layer spacing", SPACING_RANGE[0] * step <= mean <= SPACING_RANGE[1] * step,
                              f"mean {mean:.3f} w, std {d.std():.3f} w", f"histogram (w): {shares}"))
     return results
