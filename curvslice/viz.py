@@ -107,8 +107,8 @@ def voxel_layer_faces(growing: np.ndarray, origin: np.ndarray, voxel_size: float
     triangles per face between a layer-l voxel and any voxel not in layer l)."""
     g = np.pad(np.asarray(growing), 1)
     h = voxel_size / 2
-    quads, labels = [], []
-    unit = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]], float)
+    quads, labels = [], []  # corners in half-voxel integer units, so shared corners merge exactly
+    unit = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]])
     for a in range(3):
         b, c = (a + 1) % 3, (a + 2) % 3
         for s in (-1, 1):
@@ -116,12 +116,11 @@ def voxel_layer_faces(growing: np.ndarray, origin: np.ndarray, voxel_size: float
             idx = np.argwhere(mask)
             if len(idx) == 0:
                 continue
-            centre = np.asarray(origin, float) + voxel_size * (idx - 1)
-            corner = np.zeros((4, 3))
-            corner[:, a] = s * h
+            corner = np.zeros((4, 3), int)
+            corner[:, a] = s
             order = unit if s > 0 else unit[::-1]  # counter-clockwise seen from outside
-            corner[:, b], corner[:, c] = order[:, 0] * h, order[:, 1] * h
-            quads.append(centre[:, None, :] + corner[None])
+            corner[:, b], corner[:, c] = order[:, 0], order[:, 1]
+            quads.append(2 * (idx - 1)[:, None, :] + corner[None])
             labels.append(g[mask])
     if not quads:
         return {}
@@ -131,10 +130,10 @@ def voxel_layer_faces(growing: np.ndarray, origin: np.ndarray, voxel_size: float
     layers, starts = np.unique(lab, return_index=True)
     out = {}
     for layer, lo, hi in zip(layers, starts, np.r_[starts[1:], len(lab)]):
-        q = quads_all[lo:hi].reshape(-1, 3)
-        base = 4 * np.arange(hi - lo)[:, None]
-        faces = np.concatenate([base + [0, 1, 2], base + [0, 2, 3]])
-        out[int(layer)] = trimesh.Trimesh(q, faces, process=False)
+        corners, inverse = np.unique(quads_all[lo:hi].reshape(-1, 3), axis=0, return_inverse=True)
+        quad = inverse.reshape(-1, 4)
+        faces = np.concatenate([quad[:, [0, 1, 2]], quad[:, [0, 2, 3]]])
+        out[int(layer)] = trimesh.Trimesh(np.asarray(origin, float) + h * corners, faces, process=False)
     return out
 
 
@@ -183,8 +182,8 @@ def open_viewer(zmq_url: str | None = None) -> Viewer:
     return Viewer(meshcat.Visualizer(zmq_url=url), proc)
 
 
-def _mesh_object(mesh: trimesh.Trimesh, color: int, opacity: float = 1.0) -> mg.Mesh:
-    material = mg.MeshLambertMaterial(color=color, opacity=opacity, transparent=opacity < 1.0)
+def _mesh_object(mesh: trimesh.Trimesh, color: int, opacity: float = 1.0, flat: bool = False) -> mg.Mesh:
+    material = mg.MeshLambertMaterial(color=color, opacity=opacity, transparent=opacity < 1.0, flatShading=flat)
     return mg.Mesh(mg.TriangularMeshGeometry(np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32)), material)
 
 
@@ -200,7 +199,7 @@ def _frame_camera(vis: meshcat.Visualizer, lo: np.ndarray, hi: np.ndarray) -> No
     pose = np.eye(4)
     pose[:3, 3] = centre
     vis["/Cameras/default"].set_transform(pose)
-    d = 2.2 * radius  # the rotated camera frame is y-up: (x, z, -y) of the model frame
+    d = 1.7 * radius  # the rotated camera frame is y-up: (x, z, -y) of the model frame
     vis["/Cameras/default/rotated/<object>"].set_property("position", [d, 0.8 * d, d])
 
 
@@ -213,6 +212,10 @@ def build_scene(vis: meshcat.Visualizer, folder: SliceFolder, *, glyph_stride: i
     ``/curvslice/robot/<body>``, ``/curvslice/extruder/<body>``, ``/curvslice/obstacles/<body>``.
     Only the most downstream artefact is visible at first; the others are toggled in the scene tree.
     """
+    motion = _robot_motion(folder, max_frames)
+    # the camera first: a browser applies it before the (large) geometry has streamed in
+    lo, hi = _part_bounds(folder) if motion is None else motion.bounds
+    _frame_camera(vis, lo * 1e-3, hi * 1e-3)
     vis[ROOT].delete()
     root = vis[ROOT]
     scale = np.diag([1e-3, 1e-3, 1e-3, 1.0])
@@ -235,7 +238,7 @@ def build_scene(vis: meshcat.Visualizer, folder: SliceFolder, *, glyph_stride: i
     if folder.platform_vertices is not None and len(folder.platform_vertices) >= 4:
         put(part["platform"], _mesh_object(trimesh.convex.convex_hull(folder.platform_vertices), 0x606060, 0.6))
     for layer, mesh in voxel_layer_faces(folder.growing, folder.origin, folder.voxel_size).items():
-        put(part["voxels"][f"layer_{layer:04d}"], _mesh_object(mesh, _rgb_int(colors[layer - 1])), show_voxels)
+        put(part["voxels"][f"layer_{layer:04d}"], _mesh_object(mesh, _rgb_int(colors[layer - 1]), flat=True), show_voxels)
     surface_colors = layer_colors(len(folder.layers))
     for i, mesh in enumerate(folder.layers, start=1):
         if len(mesh.faces):
@@ -254,10 +257,8 @@ def build_scene(vis: meshcat.Visualizer, folder: SliceFolder, *, glyph_stride: i
             pick = np.arange(0, len(pos), glyph_stride)
             arrows = np.stack([pos[pick], pos[pick] + glyph * nrm[pick]], axis=1)
             put(part["orientations"][f"layer_{layer:04d}"], _segments_object(arrows, (0.1, 0.1, 0.1)))
-    lo, hi = _part_bounds(folder)
-    if folder.joints is not None and folder.workcell is not None and len(folder.joints["q"]):
-        lo, hi = _robot_scene(vis, folder, put, max_frames)
-    _frame_camera(vis, lo * 1e-3, hi * 1e-3)
+    if motion is not None:
+        _robot_scene(vis, folder.workcell, motion, put)
     return placed
 
 
@@ -269,35 +270,50 @@ def _part_bounds(folder: SliceFolder) -> tuple[np.ndarray, np.ndarray]:
     return pts.min(axis=0), pts.max(axis=0)
 
 
-def _robot_scene(vis: meshcat.Visualizer, folder: SliceFolder, put, max_frames: int) -> tuple[np.ndarray, np.ndarray]:
-    """Robot links, extruder and obstacles; the arm and the part it carries animated along joints.csv."""
+@dataclass
+class _RobotMotion:
+    """Poses along joints.csv (subsampled to animation frames): link bodies and the carried part."""
+
+    robot: object  # curvslice.kinematics.Robot
+    names: list[str]
+    links: np.ndarray  # (F, L, 4, 4) mm, base frame
+    part: np.ndarray  # (F, 4, 4) T_P^B = T_E^B T_P^E (Eq. 2.3)
+    bounds: tuple[np.ndarray, np.ndarray]  # the deposition region, for the camera
+
+
+def _robot_motion(folder: SliceFolder, max_frames: int) -> _RobotMotion | None:
+    if folder.joints is None or folder.workcell is None or not len(folder.joints["q"]):
+        return None
     from curvslice.kinematics import fk, link_placements, load_robot
 
     cell, q = folder.workcell, folder.joints["q"]
     robot = load_robot(cell.robot)
+    rows = np.unique(np.linspace(0, len(q) - 1, min(max_frames, len(q))).round().astype(int))
+    part = fk(robot, q[rows]) @ cell.platform_mount
+    pts = np.vstack([cell.nozzle[None, :3, 3], part[0][None, :3, 3]])
+    return _RobotMotion(robot, [f"{k:02d}_{shape.link}" for k, shape in enumerate(robot.links)],
+                        link_placements(robot, q[rows]), part, (pts.min(axis=0) - 80.0, pts.max(axis=0) + 80.0))
+
+
+def _robot_scene(vis: meshcat.Visualizer, cell: Workcell, motion: _RobotMotion, put) -> None:
+    """Robot links, extruder and obstacles; the arm and the part it carries animated along joints.csv."""
     root = vis[ROOT]
-    names = [f"{k:02d}_{shape.link}" for k, shape in enumerate(robot.links)]
-    for name, shape in zip(names, robot.links):
+    for name, shape in zip(motion.names, motion.robot.links):
         put(root["robot"][name], _mesh_object(shape.mesh, 0xD8D8D8))
     for body in cell.extruder:
         put(root["extruder"][body.name], _mesh_object(body_mesh(body).apply_transform(cell.nozzle), 0x4060A0))
     for body in cell.obstacles:
         put(root["obstacles"][body.name], _mesh_object(body_mesh(body), 0x808070, 0.35))
-    rows = np.unique(np.linspace(0, len(q) - 1, min(max_frames, len(q))).round().astype(int))
-    links = link_placements(robot, q[rows])
-    part = fk(robot, q[rows]) @ cell.platform_mount
-    for name, T in zip(names, links[0]):
+    for name, T in zip(motion.names, motion.links[0]):
         root["robot"][name].set_transform(T)
-    root["part"].set_transform(part[0])
+    root["part"].set_transform(motion.part[0])
     anim = Animation(default_framerate=30)
-    for frame, (link_T, part_T) in enumerate(zip(links, part)):
+    for frame, (link_T, part_T) in enumerate(zip(motion.links, motion.part)):
         with anim.at_frame(vis, frame) as f:
             f[ROOT]["part"].set_transform(part_T)
-            for name, T in zip(names, link_T):
+            for name, T in zip(motion.names, link_T):
                 f[ROOT]["robot"][name].set_transform(T)
     vis.set_animation(anim, play=False)
-    pts = np.vstack([cell.nozzle[None, :3, 3], part[0][None, :3, 3]])  # frame the deposition region
-    return pts.min(axis=0) - 80.0, pts.max(axis=0) + 80.0
 
 
 def show_slice(outdir: str | Path, viewer: Viewer | None = None) -> Viewer:

@@ -48,9 +48,10 @@ def test_voxel_layer_faces_bound_each_layer_exactly():
         # one quad per voxel face not shared with a voxel of the same layer (independent count)
         exposed = int((6 * mask - _same_layer_neighbours(mask) * mask).sum())
         assert len(mesh.faces) == 2 * exposed
-        merged = trimesh.Trimesh(mesh.vertices, mesh.faces, process=True)
-        # outward orientation: the divergence theorem gives the layer's voxel volume, positive
-        assert np.isclose(merged.volume, mask.sum() * w**3, rtol=1e-9)
+        # corners are shared, so each layer's boundary is closed; outward orientation: the divergence
+        # theorem gives the layer's voxel volume, positive
+        assert trimesh.Trimesh(mesh.vertices, mesh.faces, process=False).is_winding_consistent
+        assert np.isclose(mesh.volume, mask.sum() * w**3, rtol=1e-9)
         lo = origin + w * (np.argwhere(mask).min(axis=0) - 0.5)
         hi = origin + w * (np.argwhere(mask).max(axis=0) + 0.5)
         assert np.allclose(mesh.bounds, [lo, hi])
@@ -121,14 +122,14 @@ def test_meshcat_server_holds_the_expected_scene(tee_folder):
     want |= {f"/meshcat/curvslice/obstacles/{b.name}" for b in cell.obstacles}
     assert want <= objects, sorted(want - objects)
 
-    # the voxel objects are the layers' voxel boundaries: vertex count = 4 per exposed face
+    # the voxel objects are the layers' voxel boundaries: two triangles per exposed voxel face
     for c in commands:
         if c["type"] == "set_object" and "/voxels/layer_" in c["path"]:
             layer = int(c["path"][-4:])
             mask = growing == layer
             exposed = int((6 * mask - _same_layer_neighbours(mask) * mask).sum())
-            pos = c["object"]["geometries"][0]["data"]["attributes"]["position"]["array"]
-            assert len(np.frombuffer(pos.data, np.float32)) == 3 * 4 * exposed
+            index = c["object"]["geometries"][0]["data"]["index"]["array"]
+            assert len(np.frombuffer(index.data, np.uint32)) == 3 * 2 * exposed
     # the part sits on the flange: its pose is pinocchio's flange pose at q0 times T_P^E (Eq. 2.3)
     q0 = np.loadtxt(tee_folder / "joints.csv", delimiter=",", skiprows=1, ndmin=2)[0, 10:16]
     part = [c for c in commands if c["type"] == "set_transform" and c["path"] == "/meshcat/curvslice/part"]
