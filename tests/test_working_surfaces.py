@@ -13,6 +13,7 @@ from conftest import shared_models_dir
 
 from curvslice.cli import main
 from curvslice.errors import CurvsliceError
+from curvslice.geodesic import boundary_edges
 from curvslice.solid import load_solid
 from curvslice.verify import layers as verify_layers
 from curvslice.voxelize import voxelize
@@ -45,8 +46,7 @@ def _sphere_field(n: int = 40, w: float = 1.0):
 
 
 def _boundary_vertices(mesh: trimesh.Trimesh) -> np.ndarray:
-    edges = mesh.edges_sorted
-    return np.unique(edges[trimesh.grouping.group_rows(edges, require_count=1)])
+    return np.unique(boundary_edges(mesh.faces))
 
 
 def _box(extents, centre) -> trimesh.Trimesh:
@@ -224,8 +224,7 @@ def test_missed_voxels_are_bridged_by_the_next_layer():
     for layer in layers[:-1]:
         assert len(layer.split(only_watertight=False)) == 1
         assert layer.area == pytest.approx(12.5 * 12.5, rel=0.01)
-        assert len(trimesh.graph.connected_components(layer.edges_sorted[
-            trimesh.grouping.group_rows(layer.edges_sorted, require_count=1)])) == 1  # no hole
+        assert len(trimesh.graph.connected_components(boundary_edges(layer.faces))) == 1  # no hole
 
 
 def test_open_solid_is_a_user_error():

@@ -25,6 +25,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from curvslice.geodesic import boundary_edges
 from curvslice.verify import Check
 
 STAGE = "layers"
@@ -50,12 +51,6 @@ SPACING_RANGE = (0.5, 2.5)
 SAMPLES_PER_W2 = 1.0
 MAX_SAMPLES = 2000
 BATCH = 200_000
-
-
-def _boundary_vertices(mesh: trimesh.Trimesh) -> np.ndarray:
-    edges = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    uniq, count = np.unique(edges, axis=0, return_counts=True)
-    return np.unique(uniq[count == 1])
 
 
 def _xy_buckets(tri: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, tuple[int, int]]:
@@ -259,7 +254,7 @@ def checks(outdir: Path) -> list[Check] | None:
     results.append(Check(STAGE, "vertices inside H", worst <= TOLERANCE, f"max {worst:.3g} w outside",
                          f"{int(outside.sum())} of {len(verts)} vertices outside by parity (tolerance {TOLERANCE} w)"))
 
-    bnd = np.concatenate([m.vertices[_boundary_vertices(m)] for m in live])
+    bnd = np.concatenate([m.vertices[np.unique(boundary_edges(m.faces))] for m in live])
     bd = trimesh.proximity.closest_point(solid, bnd)[1] / w if len(bnd) else np.zeros(0)
     interior = bnd[bd > TOLERANCE]
     near_jump = np.zeros(len(interior), bool)
