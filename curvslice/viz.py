@@ -17,9 +17,11 @@ The scene is built in millimetres under ``/curvslice`` scaled by 0.001, so meshc
 
 from __future__ import annotations
 
+import json
 import subprocess
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import meshcat
 import meshcat.geometry as mg
@@ -33,7 +35,11 @@ from meshcat.animation import Animation
 from meshcat.servers.zmqserver import start_zmq_server_as_subprocess
 
 from curvslice.errors import CurvsliceError
+from curvslice.exporters.joints_csv import read_joints_csv
 from curvslice.workcell import Body, Workcell, workcell_from_dict
+
+if TYPE_CHECKING:
+    from curvslice.kinematics import Robot
 
 ROOT = "curvslice"
 COLORMAP = "turbo"
@@ -64,10 +70,6 @@ class SliceFolder:
 
 def read_slice_folder(outdir: str | Path) -> SliceFolder:
     """Load a ``curvslice slice`` output folder (``field.npz`` is required, the rest optional)."""
-    import json
-
-    from curvslice.exporters.joints_csv import read_joints_csv
-
     out = Path(outdir)
     if not (out / "field.npz").is_file():
         raise CurvsliceError(f"{out} is not a slice folder (no field.npz); give the --out folder of `curvslice slice`")
@@ -274,7 +276,7 @@ def _part_bounds(folder: SliceFolder) -> tuple[np.ndarray, np.ndarray]:
 class _RobotMotion:
     """Poses along joints.csv (subsampled to animation frames): link bodies and the carried part."""
 
-    robot: object  # curvslice.kinematics.Robot
+    robot: Robot
     names: list[str]
     links: np.ndarray  # (F, L, 4, 4) mm, base frame
     part: np.ndarray  # (F, 4, 4) T_P^B = T_E^B T_P^E (Eq. 2.3)
@@ -284,7 +286,7 @@ class _RobotMotion:
 def _robot_motion(folder: SliceFolder, max_frames: int) -> _RobotMotion | None:
     if folder.joints is None or folder.workcell is None or not len(folder.joints["q"]):
         return None
-    from curvslice.kinematics import fk, link_placements, load_robot
+    from curvslice.kinematics import fk, link_placements, load_robot  # pinocchio only with a robot stage
 
     cell, q = folder.workcell, folder.joints["q"]
     robot = load_robot(cell.robot)
