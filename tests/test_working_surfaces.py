@@ -21,6 +21,7 @@ from curvslice.working_surfaces import (
     ContinuedField,
     SolidDistance,
     VoxelSides,
+    continue_field,
     dual_contour,
     extract_working_surfaces,
     layer_levels,
@@ -253,6 +254,20 @@ def test_real_field_layers_pass_the_verifier(kitten_slice):
     assert not failed, failed
     names = {c.name for c in results}
     assert {"vertices inside H", "consecutive layers do not cross", "layer spacing"} <= names
+
+
+def test_untrimmed_surfaces_end_outside_the_solid(kitten_slice):
+    """§3.4.5: trimming is exact only if ∂S* lies outside H; the continued field guarantees it."""
+    with np.load(kitten_slice / "field.npz") as f:
+        growing, occupied, origin, w = f["growing"], f["occupied"], f["origin"], float(f["voxel_size"])
+    solid = trimesh.load(kitten_slice / "solid.stl", force="mesh")
+    field = continue_field(growing, occupied, origin, w)
+    distance = SolidDistance.of(solid)
+    levels = layer_levels(int(growing.max()), w)
+    for level in levels[::2]:
+        v, f = dual_contour(field, level)  # the plain isosurface: no band, no jump ends inside H
+        d, _ = distance(v[np.unique(boundary_edges(f))])
+        assert (d > 0).all()
 
 
 def test_verifier_catches_broken_layers(kitten_slice, tmp_path):
