@@ -47,7 +47,7 @@ def _body_shape(body: Body) -> _Shape:
         geom = fcl.Box(*body.dims)
         half = np.asarray(body.dims, float) / 2
     else:
-        geom = fcl.Cylinder(*body.dims)
+        geom = (fcl.Cylinder if body.kind == "cylinder" else fcl.Cone)(*body.dims)
         half = np.array([body.dims[0], body.dims[0], body.dims[1] / 2])
     return _Shape(body.name, fcl.CollisionObject(geom, fcl.Transform()), np.zeros(3), half)
 

@@ -304,10 +304,23 @@ def reference_shortest_path(
     return LadderPath(node, segment, total)
 
 
-def step_times(positions: np.ndarray, speed: np.ndarray | float, min_step: float) -> np.ndarray:
-    """Δt_j = ‖c_{j+1} − c_j‖ / v̄_j (§3.5.3), floored at ``min_step`` seconds; (m-1,)."""
+def step_times(
+    positions: np.ndarray,
+    speed: np.ndarray | float,
+    min_step: float,
+    normals: np.ndarray | None = None,
+    turn_speed: float = 0.0,
+) -> np.ndarray:
+    """Δt_j = ‖c_{j+1} − c_j‖ / v̄_j (§3.5.3), at least ∠(t_j, t_{j+1}) / ω̄ when a tool turn speed
+    ω̄ > 0 and the orientations are given, and at least ``min_step`` seconds; (m-1,)."""
     dist = np.linalg.norm(np.diff(np.asarray(positions, float), axis=0), axis=1)
-    return np.maximum(dist / np.broadcast_to(np.asarray(speed, float), dist.shape), min_step)
+    dt = dist / np.broadcast_to(np.asarray(speed, float), dist.shape)
+    if normals is not None and turn_speed > 0:
+        n = np.asarray(normals, float)
+        n = n / np.linalg.norm(n, axis=1, keepdims=True)
+        turn = np.arccos(np.clip(np.einsum("ij,ij->i", n[1:], n[:-1]), -1.0, 1.0))
+        dt = np.maximum(dt, turn / turn_speed)
+    return np.maximum(dt, min_step)
 
 
 def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
@@ -479,7 +492,8 @@ def plan_print(
         start = time.perf_counter()
         rows = np.flatnonzero(layer == value)
         speed = segment_speeds(path_id[rows], feed[rows], cell)
-        dt = step_times(positions[rows], speed, cell.min_step_time) if len(rows) > 1 else np.zeros(0)
+        dt = step_times(positions[rows], speed, cell.min_step_time, normals[rows], cell.tool_turn_speed) \
+            if len(rows) > 1 else np.zeros(0)
         collides = collides_for_layer(int(value)) if collides_for_layer else None
         motion = plan_motion(robot, cell, positions[rows], normals[rows], dt, collides, cost, None, max_rotations)
         done = motion.segment >= 0

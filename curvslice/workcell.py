@@ -25,12 +25,19 @@ Workcell file (JSON; lengths in mm, angles in degrees, as a person edits it)::
       "linear_speed_mm_s": 10.0,      # v̄ of §3.5.3 (used when the tool-path gives no feed)
       "travel_speed_mm_s": 50.0,      # jumps between paths
       "min_step_time_s": 0.008,       # floor on Δt (one controller cycle) for coincident waypoints
+      "tool_turn_speed_deg_s": 30.0,  # ω̄: the tool axis turns at most this fast (0 = no limit)
       "rotations": 30                 # p of §3.5.3 / n of Eq. 4.3
     }
 
+Step times: Δt_j = max(‖c_{j+1} − c_j‖ / v̄, ∠(t_j, t_{j+1}) / ω̄, min_step). The thesis uses the
+first term only (§3.5.3); with tool-paths whose orientation turns up to 10° between samples
+(§3.5.2's low-pass threshold) that forces a motion split at almost every crest, so the arm is
+instead given time to turn the tool (ω̄ = 0 restores the thesis's timing).
+
 A body is ``{"name": str, "type": "box", "size_mm": [sx, sy, sz], "xyz_mm": [...], "rpy_deg": [...]}``
-or ``{"name": str, "type": "cylinder", "radius_mm": r, "length_mm": h, "xyz_mm": [...], "rpy_deg": [...]}``
-(centred on its pose, cylinder axis = its z).
+or ``{"name": str, "type": "cylinder" | "cone", "radius_mm": r, "length_mm": h, "xyz_mm": [...], "rpy_deg": [...]}``
+(centred on its pose, axis = its z; a cone's apex is at +h/2, so a nozzle tip pointing down is a
+cone turned by rpy [180, 0, 0]).
 """
 
 from __future__ import annotations
@@ -53,8 +60,8 @@ class Body:
     """A box or cylinder obstacle, centred on ``pose`` (4x4, mm); cylinder axis = local z."""
 
     name: str
-    kind: str  # "box" | "cylinder"
-    dims: tuple[float, ...]  # box (sx, sy, sz) | cylinder (radius, length), mm
+    kind: str  # "box" | "cylinder" | "cone"
+    dims: tuple[float, ...]  # box (sx, sy, sz) | cylinder or cone (radius, length), mm
     pose: np.ndarray = field(repr=False)
 
 
@@ -76,6 +83,7 @@ class Workcell:
     linear_speed: float = 10.0
     travel_speed: float = 50.0
     min_step_time: float = 0.008
+    tool_turn_speed: float = np.radians(30.0)  # rad/s; 0 = no limit
     rotations: int = 30
 
     def limits(self, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
@@ -126,10 +134,10 @@ def _body(spec: dict, where: str) -> Body:
     kind = spec.get("type")
     if kind == "box":
         dims = tuple(_vector(spec, "size_mm", 3, name))
-    elif kind == "cylinder":
+    elif kind in ("cylinder", "cone"):
         dims = (float(spec.get("radius_mm", 0)), float(spec.get("length_mm", 0)))
     else:
-        raise CurvsliceError(f"workcell body '{name}': type must be 'box' or 'cylinder' (got {kind!r})")
+        raise CurvsliceError(f"workcell body '{name}': type must be 'box', 'cylinder' or 'cone' (got {kind!r})")
     if min(dims) <= 0:
         raise CurvsliceError(f"workcell body '{name}': sizes must be positive (got {list(dims)})")
     return Body(name, kind, dims, _pose(spec, name))
@@ -175,8 +183,11 @@ def workcell_from_dict(spec: dict, source: str = "workcell") -> Workcell:
         linear_speed=float(spec.get("linear_speed_mm_s", 10.0)),
         travel_speed=float(spec.get("travel_speed_mm_s", 50.0)),
         min_step_time=float(spec.get("min_step_time_s", 0.008)),
+        tool_turn_speed=float(np.radians(spec.get("tool_turn_speed_deg_s", 30.0))),
         rotations=int(spec.get("rotations", 30)),
     )
+    if cell.tool_turn_speed < 0:
+        raise CurvsliceError(f"{source}: 'tool_turn_speed_deg_s' must be 0 (no limit) or positive")
     for key in ("max_joint_speed", "linear_speed", "travel_speed", "min_step_time", "rotations"):
         if getattr(cell, key) <= 0:
             raise CurvsliceError(f"{source}: '{key}' must be positive")
@@ -204,6 +215,7 @@ def workcell_to_dict(cell: Workcell) -> dict[str, object]:
         linear_speed_mm_s=cell.linear_speed,
         travel_speed_mm_s=cell.travel_speed,
         min_step_time_s=cell.min_step_time,
+        tool_turn_speed_deg_s=round(float(np.degrees(cell.tool_turn_speed)), 9),
         rotations=cell.rotations,
     )
     return out

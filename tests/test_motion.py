@@ -199,6 +199,15 @@ def test_rotations_double_until_a_path_exists(ur5):
     assert not collides(motion.q).any()
 
 
+def test_step_times_give_the_tool_time_to_turn():
+    c = np.array([[0.0, 0, 0], [1.0, 0, 0], [2.0, 0, 0], [2.0, 0, 0]])
+    t = np.array([[0.0, 0, 1], [0.0, 0, 1], [np.sin(0.2), 0, np.cos(0.2)], [np.sin(0.2), 0, np.cos(0.2)]])
+    dt = step_times(c, 10.0, 0.008)  # thesis: Δt = ‖Δc‖ / v̄, floored
+    np.testing.assert_allclose(dt, [0.1, 0.1, 0.008])
+    dt = step_times(c, 10.0, 0.008, t, 0.5)  # a 0.2 rad turn at 0.5 rad/s takes 0.4 s
+    np.testing.assert_allclose(dt, [0.1, 0.4, 0.008])
+
+
 def test_circular_joints_of_the_shipped_robots():
     ur = load_robot("ur5")
     assert circular_joints(ur.lower, ur.upper).tolist() == [True, True, False, True, True, True]

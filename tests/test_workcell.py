@@ -77,6 +77,25 @@ def test_bad_workcells_are_user_errors(patch, message):
         workcell_from_dict(spec)
 
 
+def test_shipped_nozzle_cone_has_its_apex_at_the_tip():
+    import fcl
+
+    from curvslice.collision import CollisionScene
+
+    cell = load_workcell("ur5")
+    scene = CollisionScene(load_robot("ur5"), cell)
+    cone = next(s for s in scene.static if s.name == "nozzle")
+
+    def touches(p_nozzle):
+        p = cell.nozzle @ np.r_[p_nozzle, 1.0]
+        probe = fcl.CollisionObject(fcl.Sphere(0.01), fcl.Transform(np.eye(3), p[:3]))
+        return fcl.collide(cone.obj, probe, fcl.CollisionRequest(), fcl.CollisionResult()) > 0
+
+    assert not touches([0, 0, 0.2])  # the deposition point itself stays free
+    assert touches([0, 0, 1.0]) and touches([3.5, 0, 5.2])
+    assert not touches([3.5, 0, 2.0])  # outside the cone near the tip
+
+
 def test_unreadable_workcell_file(tmp_path):
     bad = tmp_path / "cell.json"
     bad.write_text("{not json")
