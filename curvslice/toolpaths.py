@@ -44,6 +44,8 @@ _GAP = 0.65
 #: Level of the outermost contour in path widths: a little under half a width, so the bead still
 #: reaches a jagged layer boundary (the contour smooths its notches) and the distance field's error.
 _FIRST = 0.45
+#: Gap patches narrower than this many path widths on average get no extra pass.
+_GAP_WIDTH = 0.3
 #: Holes of a layer narrower than this many path widths (perimeter < π·_BRIDGE·w) are bridged.
 _BRIDGE = 3.0
 #: Sharp corners (turn above this angle, radians) are kept as samples when re-sampling.
@@ -595,8 +597,9 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     no contour exists) and the medial-axis gaps between contour families (thesis §3.7).
 
     Vertices farther than ``_GAP`` widths from every path form connected patches; each patch at
-    least a width long gets one pass along its longest shortest path (two Dijkstra sweeps on its
-    mesh edges), which runs down the middle of a strip.
+    least a width long and ``_GAP_WIDTH`` widths wide on average (area / length: a hairline gap
+    would gain less coverage than the pass overlaps) gets one pass along its longest shortest path
+    (two Dijkstra sweeps on its mesh edges), which runs down the middle of a strip.
     """
     v = np.asarray(vertices, np.float64)
     if not pieces:
@@ -613,6 +616,8 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     graph = graph + graph.T
     n_comp, label = connected_components(graph, directed=False)
     sizes = np.bincount(label[open_v], minlength=n_comp)
+    area = 0.5 * np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
+    mass = np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(v))
     passes = []
     for c in np.nonzero(sizes >= min_vertices)[0]:
         members = np.nonzero((label == c) & open_v)[0]
@@ -624,7 +629,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         while pred[node] >= 0:
             node = int(pred[node])
             chain.append(node)
-        if dist[chain[0]] >= width:
+        if dist[chain[0]] >= width and mass[members].sum() >= _GAP_WIDTH * width * dist[chain[0]]:
             passes.append(v[members[chain]])
     return passes
 
