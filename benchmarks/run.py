@@ -302,8 +302,10 @@ def machine() -> dict[str, object]:
 
     cpu = "unknown"
     try:
-        m = re.search(r"^model name\s*:\s*(.+)$", Path("/proc/cpuinfo").read_text(), re.M)
-        cpu = m.group(1).strip() if m else cpu
+        info = Path("/proc/cpuinfo").read_text()
+        m = re.search(r"^model name\s*:\s*(.+)$", info, re.M)
+        mhz = re.search(r"^cpu MHz\s*:\s*([\d.]+)", info, re.M)
+        cpu = (m.group(1).strip() if m else cpu) + (f" at {float(mhz.group(1)) / 1000:.2f} GHz" if mhz else "")
     except OSError:
         pass
     mem = _meminfo_gb()
@@ -424,8 +426,8 @@ def markdown(result: dict[str, object]) -> str:
     lines = [
         f"# curvslice benchmark ({result['suite']} suite)", "",
         f"Regenerate with `curvslice bench{flag}` (or `python -m benchmarks{flag}`). Every stage is a library call "
-        "timed on its own; a stage is repeated in place up to "
-        f"{st['repeat']} times while its total stays under {st['budget_s']:g} s, so cells read "
+        f"timed on its own; a stage is repeated in place (at most {st['repeat']} runs) while its total stays "
+        f"under {st['budget_s']:g} s, so cells read "
         "`median (min–max, n)`, or one figure when it ran once. Seconds, wall clock. "
         + (f"A stage still running after {st['timeout_s']:g} s is stopped ('stopped'), and the stages needing "
            "its result are left out." if st.get("timeout_s") else ""), "",
