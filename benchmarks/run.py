@@ -614,7 +614,7 @@ def plot(result: dict[str, object], path: Path) -> Path:
 
 def add_arguments(p) -> None:
     """Options shared by ``curvslice bench`` and ``python -m benchmarks``."""
-    p.add_argument("--quick", action="store_true", help="small repository models (tee, arch) for CI, in well under a minute")
+    p.add_argument("--quick", action="store_true", help="the small repository models (tee, arch) for CI: about a minute on 2 cores")
     p.add_argument("--out", help="folder for results.json, RESULTS.md, results.png (default: benchmarks/ for the full "
                    "suite, ./bench_quick for --quick)")
     p.add_argument("--repeat", type=int, default=3, help="repetitions per stage (while under --budget)")
