@@ -358,17 +358,17 @@ def unwind(q: np.ndarray, segment: np.ndarray, lower: np.ndarray, upper: np.ndar
         step = np.diff(q[idx], axis=0)
         step[:, circ] = (step[:, circ] + np.pi) % TWO_PI - np.pi
         path = q[idx[0]] + np.vstack([np.zeros(6), np.cumsum(step, axis=0)])
-        span = np.maximum.accumulate(path, axis=0) - np.minimum.accumulate(path, axis=0)
-        over = (span > (upper - lower) + 1e-12).any(axis=1)
+        # whole turns k that keep every prefix of the piece inside the limits; none left: split
+        lo_k = np.ceil((lower - np.minimum.accumulate(path, axis=0)) / TWO_PI)
+        hi_k = np.floor((upper - np.maximum.accumulate(path, axis=0)) / TWO_PI)
+        over = ((lo_k > hi_k) & circ).any(axis=1)
         if over.any():
             cut = int(np.argmax(over))
             splits.append(int(idx[cut]))
             pieces.insert(0, idx[cut:])
-            idx, path = idx[:cut], path[:cut]
-        lo_k = np.ceil((lower - path.min(axis=0)) / TWO_PI - 1e-12)
-        hi_k = np.floor((upper - path.max(axis=0)) / TWO_PI + 1e-12)
+            idx, path, lo_k, hi_k = idx[:cut], path[:cut], lo_k[:cut], hi_k[:cut]
         want = np.round((centre - path.mean(axis=0)) / TWO_PI)
-        k = np.where(circ, np.clip(want, lo_k, hi_k), 0.0)
+        k = np.where(circ, np.clip(want, lo_k[-1], hi_k[-1]), 0.0)
         out[idx] = path + TWO_PI * k
     return out, sorted(splits)
 

@@ -133,6 +133,27 @@ def test_unwind_keeps_joints_in_range_and_splits_beyond_it():
     assert np.allclose(np.cos(out[:, 5]), np.cos(angle)) and np.allclose(np.sin(out[:, 5]), np.sin(angle))
 
 
+def test_unwind_random_walks_stay_in_range():
+    rng = np.random.default_rng(5)
+    lower = np.array([-2 * np.pi, -2 * np.pi, -np.pi, -2 * np.pi, -2 * np.pi, np.radians(-400)])
+    upper = -lower
+    for _ in range(50):
+        m = 300
+        walk = np.cumsum(rng.normal(0, 0.3, (m, 6)), axis=0) + rng.uniform(-np.pi, np.pi, 6)
+        walk[:, 2] = np.clip(walk[:, 2], -3.0, 3.0)  # the non-circular joint stays inside by itself
+        q = (walk + np.pi) % (2 * np.pi) - np.pi
+        q[:, 2] = walk[:, 2]
+        segment = np.repeat(np.arange(3), m // 3)
+        out, splits = unwind(q, segment, lower, upper)
+        assert (out >= lower).all() and (out <= upper).all()
+        cuts = set(splits) | {m // 3, 2 * m // 3}
+        steps = np.diff(out, axis=0)
+        wrapped = (np.diff(q, axis=0) + np.pi) % (2 * np.pi) - np.pi
+        wrapped[:, 2] = np.diff(q[:, 2])
+        keep = np.array([i + 1 not in cuts for i in range(m - 1)])
+        np.testing.assert_allclose(steps[keep], wrapped[keep], atol=1e-9)  # the short way, no jumps
+
+
 def _dome_spiral(m, turns=3, tilt_deg=60.0, radius=40.0):
     s = np.linspace(0, 1, m)
     pol = np.radians(tilt_deg) * (1 - s)

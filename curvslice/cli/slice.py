@@ -19,9 +19,13 @@ import numpy as np
 from tqdm import tqdm
 
 from curvslice import __version__
+from curvslice.collision import CollisionScene
 from curvslice.convex_front import GROW_EPS, PEEL_EPS
 from curvslice.errors import CurvsliceError
+from curvslice.exporters.joints_csv import write_robot_outputs
 from curvslice.growing_field import METHODS, growing_field
+from curvslice.kinematics import ROBOT_NAMES, load_robot
+from curvslice.motion import motion_summary, plan_print
 from curvslice.outdir import atomic_folder
 from curvslice.peeling_field import peeling_field
 from curvslice.platform import DEFAULT_MARGIN, DEFAULT_THICKNESS, disc_platform, load_platform
@@ -29,6 +33,7 @@ from curvslice.solid import UP_AXES, load_solid
 from curvslice.toolpaths import ToolpathSettings, plan_toolpaths, save_toolpaths
 from curvslice.verify.toolpaths import layer_cover
 from curvslice.voxelize import voxelize
+from curvslice.workcell import load_workcell
 from curvslice.working_surfaces import extract_working_surfaces, layer_levels, write_layers
 
 
@@ -145,11 +150,38 @@ def stage_toolpaths(ctx: Context) -> None:
               f"({ctx.report['timings_s']['toolpaths']:.1f} s)")
 
 
+def stage_robot(ctx: Context) -> None:
+    """Oriented waypoints → pose-continuous joint trajectory of the workcell's arm, robot programs
+    (§3.5.3, §4.3.1). Runs when ``--robot`` is given or the stages end at ``robot``."""
+    a = ctx.args
+    if a.robot is None and a.stages != "robot":
+        return
+    cell = load_workcell(a.robot or "ur5")
+    if a.rotations:
+        cell = cell.with_rotations(a.rotations)
+    robot = load_robot(cell.robot)
+    with np.load(ctx.out / "toolpaths.npz") as f:
+        toolpaths = {k: f[k] for k in f.files}
+    layers, n = ctx.data["layers"], len(toolpaths["positions"])
+    scene = CollisionScene(robot, cell, ctx.data["platform"].vertices)
+    with ctx.timed("robot"), ctx.bar(f"robot motion ({cell.name})", n, unit="waypoint") as bar:
+        motion = plan_print(robot, cell, toolpaths, lambda layer: scene.for_layer(layers, layer),
+                            cost=a.motion_cost, max_rotations=a.max_rotations, progress=bar.update)
+        write_robot_outputs(ctx.out, cell, robot.family, toolpaths, motion)
+    ctx.report["robot"] = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n)}
+    if not a.quiet:
+        r = ctx.report["robot"]
+        print(f"robot: {r['rows']}/{n} waypoints, {r['segments']} motions ({r['splits']} splits), "
+              f"{r['skipped']} skipped, max joint step {r['max_joint_step_rad']:.4f} rad "
+              f"({ctx.report['timings_s']['robot']:.1f} s)")
+
+
 #: The pipeline, in order: (name, stage function).
 STAGES: list[tuple[str, Callable[[Context], None]]] = [
     ("field", stage_field),
     ("layers", stage_layers),
     ("toolpaths", stage_toolpaths),
+    ("robot", stage_robot),
 ]
 
 
@@ -184,6 +216,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--feed", type=float, default=600.0, help="nozzle speed along the paths, mm/min")
     g.add_argument("--max-tilt", type=float, default=75.0, help="largest angle between tool and layer normal, degrees")
     g.add_argument("--no-gap-passes", action="store_true", help="spirals only: no extra passes through the gaps they leave")
+    g = p.add_argument_group("robot (§3.5.3, §4.3.1)")
+    g.add_argument("--robot", help=f"workcell: {', '.join(ROBOT_NAMES)} (shipped) or a workcell JSON file; "
+                   "plans the arm's motion and writes joints.csv + programs (default with --stages robot: ur5)")
+    g.add_argument("--rotations", type=int, help="p, rotations about the nozzle axis per waypoint (default: the workcell's, 30)")
+    g.add_argument("--max-rotations", type=int, help="largest p when doubling to remove splits (default: 4 p)")
+    g.add_argument("--motion-cost", default="l1", choices=("l1", "quadratic"), help="edge weight: Eq. 3.4 or Eq. 4.5")
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
     p.add_argument("--preview", action="store_true", help="also write preview.png (layers by print order, cut-away; tool-paths of one layer)")
     p.add_argument("--preview-layer", type=int, help="layer whose tool-paths preview.png shows (default: the middle one)")
