@@ -99,10 +99,6 @@ class Robot:
     links: tuple[LinkShape, ...]
     allowed_pairs: frozenset[frozenset[str]]  # link pairs excluded from self-collision
 
-    @property
-    def urdf_frame_names(self) -> list[str]:
-        return [f.name for f in self.model.frames]
-
 
 def _share_dir() -> Path:
     """The cmeel prefix of the ``example-robot-data`` wheel (its URDFs and meshes)."""

@@ -69,19 +69,27 @@ def edge_weights(
 ) -> np.ndarray:
     """(Ka, Kb) edge weights between two rungs; ``inf`` where ‖Δq‖∞/Δt > ξ (Eq. 4.4) or a node is
     absent (NaN). ``cost`` = "l1" (Eq. 3.4, weighted by ``weights``) or "quadratic" (Eq. 4.5)."""
-    w = np.ones(qa.shape[-1]) if weights is None else np.asarray(weights, float)
-    total = np.zeros((len(qa), len(qb)))
-    largest = np.zeros((len(qa), len(qb)))
-    for j in range(qa.shape[-1]):  # one (Ka, Kb) plane per joint keeps the work in cache
-        d = np.abs(qb[None, :, j] - qa[:, None, j])
-        if circular[j]:
-            np.minimum(d, TWO_PI - d, out=d)
-        np.maximum(largest, d, out=largest)
-        if cost != "l1":
-            d *= d
-        total += w[j] * d
+    total, largest = _joint_costs(lambda j: qb[None, :, j] - qa[:, None, j], circular, cost, weights)
     total[~(largest <= max_speed * dt)] = np.inf  # NaN nodes compare False -> excluded
     return total
+
+
+def _joint_costs(
+    diff: Callable[[int], np.ndarray], circular: np.ndarray, cost: str, weights: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Edge cost (Eq. 3.4 or 4.5) and ‖Δq‖∞ from per-joint differences ``diff(j)``, one joint at
+    a time (keeps the work in cache); circular joints take the short way round."""
+    total = largest = None
+    for j in range(len(circular)):
+        d = np.abs(diff(j))
+        if circular[j]:
+            np.minimum(d, TWO_PI - d, out=d)
+        largest = d.copy() if largest is None else np.maximum(largest, d, out=largest)
+        if cost != "l1":
+            d *= d
+        d *= 1.0 if weights is None else float(weights[j])
+        total = d if total is None else np.add(total, d, out=total)
+    return total, largest
 
 
 def sparse_edges(
@@ -125,17 +133,7 @@ def sparse_edges(
     pos = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(lo, counts)
     ib = owner[order[pos]]
     ia, ib = ka[ia], kb[ib]
-    wj = np.ones(qa.shape[-1]) if weights is None else np.asarray(weights, float)
-    total = np.zeros(len(ia))
-    largest = np.zeros(len(ia))
-    for j in range(qa.shape[-1]):
-        d = np.abs(qb[ib, j] - qa[ia, j])
-        if circular[j]:
-            np.minimum(d, TWO_PI - d, out=d)
-        np.maximum(largest, d, out=largest)
-        if cost != "l1":
-            d *= d
-        total += wj[j] * d
+    total, largest = _joint_costs(lambda j: qb[ib, j] - qa[ia, j], circular, cost, weights)
     keep = largest <= limit
     return ia[keep], ib[keep], total[keep]
 
