@@ -12,6 +12,7 @@ towards later layers) is kept below ``max_tilt``.
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as _closest_on_triangles
 
@@ -34,6 +35,17 @@ def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | No
     best = np.argmin(dist, axis=1)
     rows = np.arange(len(pts))
     return cand[rows, best], dist[rows, best], idx[rows, best]
+
+
+def surface_normals(mesh: trimesh.Trimesh, points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Unit layer normals at ``points`` (lying on triangles ``faces`` of ``mesh``), interpolated
+    from the vertex normals: continuous across edges, unlike the flipped slivers a contoured
+    surface may contain."""
+    tri = mesh.triangles[faces]
+    with np.errstate(all="ignore"):
+        bary = trimesh.triangles.points_to_barycentric(tri, points)
+    bary[~np.isfinite(bary).all(axis=1)] = 1.0 / 3.0
+    return _unit(np.einsum("ij,ijk->ik", bary, mesh.vertex_normals[mesh.faces[faces]]))
 
 
 def accumulation_directions(points: np.ndarray, closest: np.ndarray, fallback: np.ndarray) -> np.ndarray:

@@ -44,8 +44,8 @@ _GAP = 0.65
 #: Level of the outermost contour in path widths: a little under half a width, so the bead still
 #: reaches a jagged layer boundary (the contour smooths its notches) and the distance field's error.
 _FIRST = 0.45
-#: Gap patches narrower than this many path widths on average get no extra pass.
-_GAP_WIDTH = 0.3
+#: Final guard on the orientation's angle to the layer normal, after smoothing (radians).
+_HARD_TILT = float(np.radians(85.0))
 #: Holes of a layer narrower than this many path widths (perimeter < π·_BRIDGE·w) are bridged.
 _BRIDGE = 3.0
 #: Sharp corners (turn above this angle, radians) are kept as samples when re-sampling.
@@ -597,9 +597,8 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     no contour exists) and the medial-axis gaps between contour families (thesis §3.7).
 
     Vertices farther than ``_GAP`` widths from every path form connected patches; each patch at
-    least a width long and ``_GAP_WIDTH`` widths wide on average (area / length: a hairline gap
-    would gain less coverage than the pass overlaps) gets one pass along its longest shortest path
-    (two Dijkstra sweeps on its mesh edges), which runs down the middle of a strip.
+    least a width long gets one pass along its longest shortest path (two Dijkstra sweeps on its
+    mesh edges), which runs down the middle of a strip.
     """
     v = np.asarray(vertices, np.float64)
     if not pieces:
@@ -616,8 +615,6 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     graph = graph + graph.T
     n_comp, label = connected_components(graph, directed=False)
     sizes = np.bincount(label[open_v], minlength=n_comp)
-    area = 0.5 * np.linalg.norm(np.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]]), axis=1)
-    mass = np.bincount(faces.ravel(), weights=np.repeat(area / 3.0, 3), minlength=len(v))
     passes = []
     for c in np.nonzero(sizes >= min_vertices)[0]:
         members = np.nonzero((label == c) & open_v)[0]
@@ -629,7 +626,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         while pred[node] >= 0:
             node = int(pred[node])
             chain.append(node)
-        if dist[chain[0]] >= width and mass[members].sum() >= _GAP_WIDTH * width * dist[chain[0]]:
+        if dist[chain[0]] >= width:
             passes.append(v[members[chain]])
     return passes
 
@@ -760,7 +757,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             next_path += len(samples)
             cursor = q[-1]
             q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer
-            surface_normal = surface.face_normals[own_face]
+            surface_normal = ori.surface_normals(surface, q, own_face)
             closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])  # the platform top
             dist = np.abs(q[:, 2])
             for tri_k, tree_k in earlier[-settings.window:]:
@@ -771,7 +768,9 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             t = ori.limit_tilt(t, surface_normal, settings.max_tilt)
             t = ori.low_pass(t, pid, settings.max_angle)
             pos, nrm, parent, frac = ori.slerp_subdivide(q, t, pid, settings.max_angle)
-            pos, _, _ = ori.closest_points(pos, tri, own_tree)  # crest subdivisions onto the layer
+            pos, _, pos_face = ori.closest_points(pos, tri, own_tree)  # crest subdivisions onto the layer
+            # the low-pass may have tilted a sample past the limit: never into the printed side
+            nrm = ori.limit_tilt(nrm, ori.surface_normals(surface, pos, pos_face), _HARD_TILT)
             nxt = np.minimum(parent + 1, len(q) - 1)
             thick = np.clip(dist, settings.min_thickness * w, settings.max_thickness * w)
             row["thickness_clamped"] = int(np.sum((dist < settings.min_thickness * w) | (dist > settings.max_thickness * w)))
