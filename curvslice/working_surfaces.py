@@ -64,6 +64,10 @@ SNAP = 0.01
 #: Regula falsi stops within this distance of ∂H (voxel widths); the vertex then moves onto ∂H.
 ROOT_TOL = 0.01
 ROOT_ITERATIONS = 40
+#: Consecutive layers that the approximation makes cross are pushed apart to this clearance (in
+#: voxel widths), for at most SEPARATION_ROUNDS rounds.
+CLEARANCE = 0.01
+SEPARATION_ROUNDS = 8
 
 # ----------------------------------------------------------------------------------------------
 # 1. the continued field
@@ -562,6 +566,88 @@ def trim_by_solid(vertices: np.ndarray, faces: np.ndarray, distance: SolidDistan
 
 
 # ----------------------------------------------------------------------------------------------
+# 4. separation of consecutive layers
+
+
+def _triangles_intersect(t1: np.ndarray, t2: np.ndarray) -> np.ndarray:
+    """Row-wise triangle-triangle intersection by Möller's interval test (1997): each triangle must
+    straddle the other's plane, and their intervals on the planes' common line must overlap.
+    Coplanar pairs count as separate."""
+    n1 = np.cross(t1[:, 1] - t1[:, 0], t1[:, 2] - t1[:, 0])
+    n2 = np.cross(t2[:, 1] - t2[:, 0], t2[:, 2] - t2[:, 0])
+    d1 = np.einsum("ikj,ij->ik", t1 - t2[:, None, 0], n2)  # t1's corners against t2's plane
+    d2 = np.einsum("ikj,ij->ik", t2 - t1[:, None, 0], n1)
+    straddle = ~(((d1 > 0).all(1) | (d1 < 0).all(1)) | ((d2 > 0).all(1) | (d2 < 0).all(1)))
+    line = np.cross(n1, n2)
+    straddle &= np.einsum("ij,ij->i", line, line) > 0
+
+    def interval(t: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        proj = np.einsum("ikj,ij->ik", t, line)
+        ends = [np.where(d[:, k] == 0, proj[:, k], np.nan) for k in range(3)]
+        for i, j in ((0, 1), (1, 2), (2, 0)):
+            cross = d[:, i] * d[:, j] < 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                at = proj[:, i] + (proj[:, j] - proj[:, i]) * d[:, i] / (d[:, i] - d[:, j])
+            ends.append(np.where(cross, at, np.nan))
+        ends = np.stack(ends, axis=1)
+        ends[~straddle] = 0.0
+        return np.nanmin(ends, axis=1), np.nanmax(ends, axis=1)
+
+    lo1, hi1 = interval(t1, d1)
+    lo2, hi2 = interval(t2, d2)
+    return straddle & (np.maximum(lo1, lo2) <= np.minimum(hi1, hi2))
+
+
+def _crossing_faces(earlier: trimesh.Trimesh, later_v: np.ndarray, later_f: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (face of ``earlier``, face of the later mesh) that intersect."""
+    ta, tb = np.asarray(earlier.triangles, float), later_v[later_f]
+    ca, cb = ta.mean(axis=1), tb.mean(axis=1)
+    reach = np.linalg.norm(ta - ca[:, None], axis=2).max() + np.linalg.norm(tb - cb[:, None], axis=2).max()
+    pairs = cKDTree(ca).query_ball_point(cb, reach)
+    counts = np.fromiter(map(len, pairs), np.int64, len(pairs))
+    ib = np.repeat(np.arange(len(tb)), counts)
+    ia = np.fromiter(itertools.chain.from_iterable(pairs), np.int64, int(counts.sum()))
+    overlap = ((ta[ia].min(axis=1) <= tb[ib].max(axis=1)) & (tb[ib].min(axis=1) <= ta[ia].max(axis=1))).all(axis=1)
+    ia, ib = ia[overlap], ib[overlap]
+    hit = _triangles_intersect(ta[ia], tb[ib])
+    return ia[hit], ib[hit]
+
+
+def separate_from(earlier: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, voxel_size: float
+                  ) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """Make a layer clear of the one before it: every later triangle crossing an earlier one gets
+    its corners pushed :data:`CLEARANCE` in front of that triangle's plane (along its normal, which
+    points towards later layers), repeatedly; triangles still crossing after
+    :data:`SEPARATION_ROUNDS` are dropped. Returns (vertices, faces, vertices moved, faces dropped)."""
+    v = np.array(vertices, float)
+    if len(earlier.faces) == 0 or len(faces) == 0:
+        return v, faces, 0, 0
+    normals = np.asarray(earlier.face_normals, float)
+    anchor = np.asarray(earlier.triangles, float)[:, 0]
+    moved = np.zeros(len(v), bool)
+    for _ in range(SEPARATION_ROUNDS):
+        ia, ib = _crossing_faces(earlier, v, faces)
+        if len(ia) == 0:
+            return v, faces, int(moved.sum()), 0
+        corner = faces[ib].ravel()
+        n = np.repeat(normals[ia], 3, axis=0)
+        lack = CLEARANCE * voxel_size - np.einsum("ij,ij->i", v[corner] - np.repeat(anchor[ia], 3, axis=0), n)
+        need = lack > 0
+        push = np.zeros(len(v))
+        np.maximum.at(push, corner[need], lack[need])
+        first = np.full(len(v), -1)
+        first[corner[need][::-1]] = np.flatnonzero(need)[::-1]  # the pair that asks for a push
+        hit = push > 0
+        v[hit] += push[hit, None] * n[first[hit]]
+        moved |= hit
+    _, ib = _crossing_faces(earlier, v, faces)
+    keep = np.ones(len(faces), bool)
+    keep[ib] = False
+    return v, faces[keep], int(moved.sum()), int((~keep).sum())
+
+
+# ----------------------------------------------------------------------------------------------
 # the stage
 
 
@@ -584,7 +670,9 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
     ``growing`` is G (int, 0 = empty/missed) on the voxel grid (``origin`` = centre of voxel
     (0,0,0), mm); ``occupied`` is H̄ (default ``growing > 0``; pass it so missed voxels are bridged);
     ``solid`` is H. Each mesh's ``metadata`` holds ``layer``, ``isovalue``, ``lowered`` (fallback
-    level used), ``untrimmed_faces`` and the seconds spent in ``dc_seconds`` / ``trim_seconds``.
+    level used), ``untrimmed_faces``, ``separated_vertices`` / ``dropped_faces`` (see
+    :func:`separate_from`) and the seconds spent in ``dc_seconds`` / ``trim_seconds`` (trimming and
+    separation).
     ``progress`` is an optional tqdm-like object updated once per layer.
     """
     growing = np.asarray(growing)
@@ -616,8 +704,14 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
             trim_s += time.perf_counter() - t1
             if len(tf):
                 break
+        moved = dropped = 0
+        t2 = time.perf_counter()
+        if layers:
+            tv, tf, moved, dropped = separate_from(layers[-1], tv, tf, w)
+        trim_s += time.perf_counter() - t2
         mesh = trimesh.Trimesh(tv, tf, process=False)
         mesh.metadata.update(layer=i + 1, isovalue=level, lowered=offset != 0.0, untrimmed_faces=len(f),
+                             separated_vertices=moved, dropped_faces=dropped,
                              dc_seconds=dc_s, trim_seconds=trim_s)
         layers.append(mesh)
         if progress is not None:

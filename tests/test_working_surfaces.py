@@ -22,9 +22,11 @@ from curvslice.working_surfaces import (
     SolidDistance,
     VoxelSides,
     continue_field,
+    _triangles_intersect,
     dual_contour,
     extract_working_surfaces,
     layer_levels,
+    separate_from,
     trim_by_solid,
     write_layers,
 )
@@ -293,6 +295,31 @@ def test_verifier_catches_broken_layers(kitten_slice, tmp_path):
     failed = {r.name for r in verify_layers.checks(out) if not r.passed}
     assert {"one file per layer", "vertices inside H", "each layer lies on its own voxels",
             "normals towards later layers"} <= failed
+
+
+def test_library_and_verifier_intersection_tests_agree():
+    rng = np.random.default_rng(4)
+    t1 = rng.normal(size=(20000, 3, 3))
+    t2 = 0.7 * rng.normal(size=(20000, 3, 3)) + 0.5 * rng.normal(size=(20000, 1, 3))
+    edge_test = np.zeros(len(t1), bool)
+    for k in range(3):
+        edge_test |= verify_layers._segment_hits_triangle(t1[:, k], t1[:, (k + 1) % 3], t2)
+        edge_test |= verify_layers._segment_hits_triangle(t2[:, k], t2[:, (k + 1) % 3], t1)
+    interval_test = _triangles_intersect(t1, t2)
+    assert 0.05 < interval_test.mean() < 0.95
+    assert (interval_test == edge_test).all()
+
+
+def test_a_crossing_layer_is_pushed_clear_of_the_one_before():
+    n = 12
+    g = np.stack(np.meshgrid(np.linspace(-5, 5, n), np.linspace(-5, 5, n), indexing="ij"), -1).reshape(-1, 2)
+    earlier = trimesh.Trimesh(np.c_[g, np.zeros(len(g))], _grid_faces(n), process=False)
+    later_v = np.c_[g, 1.0 - 0.1 * (g**2).sum(axis=1)]  # a dome dipping through the flat layer
+    v, f, moved, dropped = separate_from(earlier, later_v, _grid_faces(n), 1.0)
+    assert moved > 0 and dropped == 0
+    assert verify_layers.crossing_pairs(earlier, trimesh.Trimesh(v, f, process=False)) == 0
+    assert (v[:, 2] >= 0.01 - 1e-12).all()
+    assert np.allclose(v[later_v[:, 2] > 0.01], later_v[later_v[:, 2] > 0.01])  # the rest is untouched
 
 
 def test_crossing_test_sees_crossing_planes_only():
