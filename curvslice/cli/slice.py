@@ -111,6 +111,8 @@ def stage_layers(ctx: Context) -> None:
         "triangles_per_layer": faces,
         "lowered": [m.metadata["layer"] for m in layers if m.metadata["lowered"]],
         "empty": [m.metadata["layer"] for m in layers if not len(m.faces)],
+        "separated_vertices": sum(m.metadata["separated_vertices"] for m in layers),
+        "dropped_faces": sum(m.metadata["dropped_faces"] for m in layers),
         "dual_contouring_s": round(sum(m.metadata["dc_seconds"] for m in layers), 3),
         "trimming_s": round(sum(m.metadata["trim_seconds"] for m in layers), 3),
     }
