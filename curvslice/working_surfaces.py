@@ -35,6 +35,12 @@ contours just above each layer, at i + 0.001). g_1 = ½ is the platform contact 
 any layer that nothing covers) is the skin ∂H itself, so its interface lies outside H and trims to
 nothing; such a layer is extracted at the first of the lower levels l·s + ½ + s·``FALLBACK_OFFSETS``
 whose trimmed surface is not empty (still above layer l − 1's level), and its mesh metadata says so.
+A layer that stays empty even at l·s + ½ − 0.99·s has voxels that only graze ∂H (the voxelization
+is conservative): its file is written with no faces (on the shared models: ≤ 0.12 voxel volumes of
+material, measured by the verifier).
+
+**Separation.** Level sets of one field cannot cross, but their dual-contouring approximations can
+where G jumps; each layer is pushed clear of the one before (:func:`separate_from`).
 """
 
 from __future__ import annotations
