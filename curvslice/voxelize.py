@@ -124,7 +124,7 @@ def _batches(counts: np.ndarray, batch: int):
         start = stop
 
 
-def _interior_winding(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[int, int, int]) -> np.ndarray:
+def centres_inside(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[int, int, int]) -> np.ndarray:
     """Boolean grid: voxel centre inside the closed surface, by the winding number of a +z ray
     through every column of centres (crossings counted once by a top-left tie rule)."""
     nx, ny, nz = shape
@@ -164,7 +164,7 @@ def _interior_winding(tri: np.ndarray, origin: np.ndarray, w: float, shape: tupl
     return winding > 0
 
 
-def _surface_voxels(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[int, int, int]) -> np.ndarray:
+def surface_voxels(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[int, int, int]) -> np.ndarray:
     """Boolean grid: voxels whose open box the triangles meet (separating axis theorem,
     Akenine-Möller 2001). Open boxes suffice for conservativeness: a voxel whose open box reaches
     the interior of H either has its centre in H or is crossed by ∂H; a face of H lying exactly on
@@ -203,7 +203,7 @@ def voxelize(mesh: trimesh.Trimesh, voxel_size: float, memory_limit: int = DEFAU
     w = float(voxel_size)
     origin, shape = grid_for(mesh.bounds, w)
     tri = np.asarray(mesh.triangles, dtype=np.float64)
-    occupied = _interior_winding(tri, origin, w, shape) | _surface_voxels(tri, origin, w, shape)
+    occupied = centres_inside(tri, origin, w, shape) | surface_voxels(tri, origin, w, shape)
     if not occupied.any():
         raise CurvsliceError("voxelization produced no voxels; is the mesh empty or degenerate?")
     return VoxelGrid(occupied=occupied, origin=origin, voxel_size=w)

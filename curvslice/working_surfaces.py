@@ -57,7 +57,7 @@ from scipy.spatial import cKDTree
 
 from curvslice.errors import CurvsliceError
 from curvslice.growing_field import ASN_OFFSETS
-from curvslice.voxelize import _interior_winding, _surface_voxels
+from curvslice.voxelize import centres_inside, surface_voxels
 
 #: Voxels of padding around the field grid (continuation ring, gradient stencil, platform rows).
 PAD = 3
@@ -484,8 +484,8 @@ class VoxelSides:
     def of(cls, solid: trimesh.Trimesh, origin: np.ndarray, voxel_size: float,
            shape: tuple[int, int, int]) -> VoxelSides:
         tri = np.asarray(solid.triangles, float)
-        touched = _surface_voxels(tri, origin, voxel_size, shape)
-        inside = _interior_winding(tri, origin, voxel_size, shape)
+        touched = surface_voxels(tri, origin, voxel_size, shape)
+        inside = centres_inside(tri, origin, voxel_size, shape)
         side = np.where(touched, 0, np.where(inside, -1, 1)).astype(np.int8)
         return cls(side, np.asarray(origin, float), float(voxel_size))
 
