@@ -161,3 +161,13 @@ def test_verifier_catches_a_wrong_joint_row(tmp_path):
     write_robot_outputs(tmp_path, cell, robot.family, tp, motion)
     failed = {c.name for c in verify_robot.checks(tmp_path) if not c.passed}
     assert "FK reproduces waypoint position" in failed
+
+
+def test_cli_rejects_an_unknown_robot_while_parsing(tmp_path, capsys):
+    from curvslice.cli import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["slice", str(tmp_path / "part.stl"), "--robot", "kuka"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "--robot" in err and "kuka" in err and "Traceback" not in err

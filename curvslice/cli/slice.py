@@ -219,7 +219,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--max-tilt", type=float, default=75.0, help="largest angle between tool and layer normal, degrees")
     g.add_argument("--no-gap-passes", action="store_true", help="spirals only: no extra passes through the gaps they leave")
     g = p.add_argument_group("robot (§3.5.3, §4.3.1)")
-    g.add_argument("--robot", help=f"workcell: {', '.join(ROBOT_NAMES)} (shipped) or a workcell JSON file; "
+    g.add_argument("--robot", type=_workcell_arg, help=f"workcell: {', '.join(ROBOT_NAMES)} (shipped) or a workcell JSON file; "
                    "plans the arm's motion and writes joints.csv + programs (default with --stages robot: ur5)")
     g.add_argument("--rotations", type=int, help="p, rotations about the nozzle axis per waypoint (default: the workcell's, 30)")
     g.add_argument("--max-rotations", type=int, help="largest p when doubling to remove splits (default: 4 p)")
@@ -228,6 +228,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--preview", action="store_true", help="also write preview.png (layers by print order, cut-away; tool-paths of one layer)")
     p.add_argument("--preview-layer", type=int, help="layer whose tool-paths preview.png shows (default: the middle one)")
     p.set_defaults(run=run)
+
+
+def _workcell_arg(text: str) -> str:
+    """Check ``--robot`` while parsing, not after the slicing stages."""
+    try:
+        load_workcell(text)
+    except CurvsliceError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def run(args: argparse.Namespace) -> int:
