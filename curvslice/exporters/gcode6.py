@@ -17,7 +17,7 @@ import numpy as np
 
 from curvslice.exporters import fixed
 
-_WORD = re.compile(r"(nX|nY|nZ|[XYZEF])\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)")
+_WORD = re.compile(r"(nX|nY|nZ|[XYZEF])\s*([-+]?(?:\d+\.?\d*|\.\d+))")  # no exponents: X10E5 is X10 E5
 _MARK = re.compile(r"^;\s*(LAYER|PATH)\s*:\s*(-?\d+)")
 _HEADER = re.compile(r"^;\s*([A-Za-z_][\w.]*)\s*=\s*(.*?)\s*$")
 
