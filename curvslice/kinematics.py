@@ -168,8 +168,8 @@ def _ur_robot(name: str) -> Robot:
     )
 
 
-def _capsule(radius: float, a: tuple, b: tuple) -> tuple[np.ndarray, trimesh.Trimesh]:
-    """A capsule mesh between points a and b (mm) and its placement (identity; mesh is posed)."""
+def _capsule(radius: float, a: tuple, b: tuple) -> trimesh.Trimesh:
+    """A capsule mesh between points a and b (mm), posed in its link frame."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     height = float(np.linalg.norm(b - a))
     mesh = trimesh.creation.capsule(height=height, radius=radius, count=[12, 12])
@@ -177,7 +177,7 @@ def _capsule(radius: float, a: tuple, b: tuple) -> tuple[np.ndarray, trimesh.Tri
     if height > 0:
         mesh.apply_transform(trimesh.geometry.align_vectors([0, 0, 1], (b - a) / height))
     mesh.apply_translation(a)
-    return np.eye(4), mesh
+    return mesh
 
 
 def _irb120_robot() -> Robot:
@@ -193,8 +193,7 @@ def _irb120_robot() -> Robot:
     links = []
     for link, radius, a, b in _IRB120_CAPSULES:
         frame = model.frames[model.getFrameId(link)]
-        placement, mesh = _capsule(radius, a, b)
-        links.append(LinkShape(link, int(frame.parentJoint), _se3(frame.placement) @ placement, mesh))
+        links.append(LinkShape(link, int(frame.parentJoint), _se3(frame.placement), _capsule(radius, a, b)))
     allowed = [(_IRB120_CAPSULES[i][0], _IRB120_CAPSULES[i + 1][0]) for i in range(6)]
     allowed += [("link_3", "link_5"), ("link_4", "link_6"), ("link_3", "link_6"), ("base_link", "link_2")]
     return Robot(
@@ -276,7 +275,7 @@ def _dh(theta: np.ndarray, d: float, a: float, alpha: float) -> np.ndarray:
     return out
 
 
-def _inv(T: np.ndarray) -> np.ndarray:
+def rigid_inverse(T: np.ndarray) -> np.ndarray:
     """Inverse of rigid transforms (..., 4, 4)."""
     out = np.zeros_like(T)
     Rt = np.swapaxes(T[..., :3, :3], -1, -2)
@@ -320,7 +319,7 @@ def _ik_ur(robot: Robot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Hawkins's closed form for the UR offset wrist: (n, 8, 6) solutions and (n, 8) validity."""
     d, a, alpha = _ur_dh(robot)
     d4, d6, a2, a3 = d[3], d[5], a[1], a[2]
-    Td = _inv(robot.base_offset) @ T
+    Td = rigid_inverse(robot.base_offset) @ T
     R, p = Td[:, :3, :3], Td[:, :3, 3]
     p05 = p - d6 * R[:, :, 2]
     r = np.hypot(p05[:, 0], p05[:, 1])
@@ -341,7 +340,7 @@ def _ik_ur(robot: Robot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     th1b = np.broadcast_to(th1[:, :, None], th5.shape)
     T01 = _dh(th1b, d[0], a[0], alpha[0])
     T46 = _dh(th5, d[4], a[4], alpha[4]) @ _dh(th6, d[5], a[5], alpha[5])
-    T14 = _inv(T01) @ Td[:, None, None] @ _inv(T46)
+    T14 = rigid_inverse(T01) @ Td[:, None, None] @ rigid_inverse(T46)
     P13 = T14[..., :3, :3] @ np.array([0.0, -d4, 0.0]) + T14[..., :3, 3]
     n13 = np.linalg.norm(P13, axis=-1)
     c3 = (n13**2 - a2**2 - a3**2) / (2 * a2 * a3)
@@ -351,7 +350,7 @@ def _ik_ur(robot: Robot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         np.clip(a3 * np.sin(th3) / np.maximum(n13, 1e-12)[..., None], -1, 1)
     )
     T13 = _dh(th2, d[1], a[1], alpha[1]) @ _dh(th3, d[2], a[2], alpha[2])
-    T34 = _inv(T13) @ T14[..., None, :, :]
+    T34 = rigid_inverse(T13) @ T14[..., None, :, :]
     th4 = np.arctan2(T34[..., 1, 0], T34[..., 0, 0])
     shape = th3.shape
     q = np.stack(

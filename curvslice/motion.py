@@ -7,9 +7,10 @@ weighted quadratic Δqᵀ W Δq (Eq. 4.5); distances are circular on joints that
 revolution ("winding effect", §4.3.1). The graph is a DAG, so the multi-source Dijkstra of the
 thesis (all first-rung nodes as sources) is computed rung by rung, vectorized over node pairs.
 Where no node of a rung is reachable the motion splits there and a new one starts (Fig. 3.11b);
-when a layer needs splits, p is doubled and the search repeated (§4.3.1).
-Collisions are checked lazily: only nodes on the current best path are tested, a colliding rung is
-tested whole and the search resumed from it; the result equals checking every node first.
+when a layer needs splits, p is doubled and the search repeated while that removes splits (§4.3.1).
+Collisions are checked lazily: only nodes on the current best path are tested; where one collides,
+the other nodes of its IK branch in that rung are tested too and the search resumes from the
+earliest such rung. The result equals checking every node first (tested against that).
 """
 
 from __future__ import annotations

@@ -52,7 +52,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from curvslice.errors import CurvsliceError
-from curvslice.kinematics import ROBOT_NAMES, Robot
+from curvslice.kinematics import ROBOT_NAMES, Robot, rigid_inverse
 
 
 @dataclass(frozen=True)
@@ -283,12 +283,7 @@ def rotation_samples(p: int) -> np.ndarray:
 def flange_poses(cell: Workcell, positions: np.ndarray, normals: np.ndarray, p: int) -> np.ndarray:
     """Flange poses T_E^B (n, p, 4, 4) realizing each waypoint at the nozzle tip (Eq. 2.3)."""
     T_OP = deposition_frames(positions, normals, rotation_samples(p))
-    inv_OP = np.zeros_like(T_OP)
-    Rt = np.swapaxes(T_OP[..., :3, :3], -1, -2)
-    inv_OP[..., :3, :3] = Rt
-    inv_OP[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, T_OP[..., :3, 3])
-    inv_OP[..., 3, 3] = 1.0
-    return cell.nozzle @ inv_OP @ np.linalg.inv(cell.platform_mount)
+    return cell.nozzle @ rigid_inverse(T_OP) @ rigid_inverse(cell.platform_mount)
 
 
 def waypoints_from_flange(cell: Workcell, flange: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -296,6 +291,5 @@ def waypoints_from_flange(cell: Workcell, flange: np.ndarray) -> tuple[np.ndarra
 
     Returns positions (n, 3) mm and unit tool orientations (n, 3) (from the part to the nozzle).
     """
-    T_PB = np.asarray(flange, float) @ cell.platform_mount
-    T_NP = np.linalg.inv(T_PB) @ cell.nozzle
+    T_NP = rigid_inverse(np.asarray(flange, float) @ cell.platform_mount) @ cell.nozzle
     return T_NP[..., :3, 3], T_NP[..., :3, 2]
