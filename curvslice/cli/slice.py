@@ -154,11 +154,12 @@ def stage_toolpaths(ctx: Context) -> None:
 
 def stage_robot(ctx: Context) -> None:
     """Oriented waypoints → pose-continuous joint trajectory of the workcell's arm, robot programs
-    (§3.5.3, §4.3.1). Runs when ``--robot`` is given or the stages end at ``robot``."""
+    (§3.5.3, §4.3.1). Runs only when ``--robot`` names a workcell."""
     a = ctx.args
-    if a.robot is None and a.stages != "robot":
+    if a.robot is None:
+        ctx.report["robot"] = "skipped: no --robot given"
         return
-    cell = load_workcell(a.robot or "ur5")
+    cell = load_workcell(a.robot)
     if a.rotations:
         cell = cell.with_rotations(a.rotations)
     robot = load_robot(cell.robot)
@@ -220,7 +221,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--no-gap-passes", action="store_true", help="spirals only: no extra passes through the gaps they leave")
     g = p.add_argument_group("robot (§3.5.3, §4.3.1)")
     g.add_argument("--robot", type=_workcell_arg, help=f"workcell: {', '.join(ROBOT_NAMES)} (shipped) or a workcell JSON file; "
-                   "plans the arm's motion and writes joints.csv + programs (default with --stages robot: ur5)")
+                   "plans the arm's motion and writes joints.csv + programs (without it the robot stage is skipped)")
     g.add_argument("--rotations", type=int, help="p, rotations about the nozzle axis per waypoint (default: the workcell's, 30)")
     g.add_argument("--max-rotations", type=int, help="largest p when doubling to remove splits (default: 4 p)")
     g.add_argument("--motion-cost", default="l1", choices=("l1", "quadratic"), help="edge weight: Eq. 3.4 or Eq. 4.5")
