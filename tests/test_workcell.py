@@ -171,3 +171,22 @@ def test_cli_rejects_an_unknown_robot_while_parsing(tmp_path, capsys):
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert "--robot" in err and "kuka" in err and "Traceback" not in err
+
+
+def test_slice_cli_robot_stage_verifies(tmp_path):
+    """`curvslice slice tee.stl --robot ur5 --stages robot` on a coarse grid, re-checked by verify."""
+    from pathlib import Path
+
+    from curvslice.cli import main
+
+    model = Path(__file__).resolve().parents[1] / "models" / "tee.stl"
+    out = tmp_path / "tee"
+    assert main(["slice", str(model), "--voxel", "3", "--out", str(out), "--stages", "robot", "--robot", "ur5",
+                 "--quiet"]) == 0
+    report = json.loads((out / "report.json").read_text())["robot"]
+    assert report["rows"] + report["skipped"] == report["waypoints"] > 0
+    assert report["ik_solutions_per_waypoint_min"] > 0 and report["max_joint_step_rad"] > 0
+    results = {c.name: c for c in verify_robot.checks(out)}
+    for name in ("FK reproduces waypoint position", "FK reproduces nozzle axis", "joint limits",
+                 "joint speed within segments", "no collision at any row", "URScript program matches joints.csv"):
+        assert results[name].passed, results[name]
