@@ -339,6 +339,58 @@ def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndar
     return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
 
 
+def tilted_axes(axis: np.ndarray, angle: float, azimuths: int = 8) -> np.ndarray:
+    """Unit axes at ``angle`` (rad) from the unit ``axis``, ``azimuths`` of them around it, ordered
+    from the one tilted towards the vertical +Z (first) to the one tilted away from it (last)."""
+    a = np.asarray(axis, float)
+    up = np.array([0.0, 0.0, 1.0]) - a[2] * a  # +Z without its component along the axis
+    if np.linalg.norm(up) < 1e-9:
+        up = np.array([1.0, 0.0, 0.0]) - a[0] * a
+    u = up / np.linalg.norm(up)
+    v = np.cross(a, u)
+    phi = 2 * np.pi * np.arange(azimuths) / azimuths
+    phi = phi[np.argsort(np.minimum(phi, 2 * np.pi - phi), kind="stable")]  # 0, +45°, -45°, ...
+    d = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
+    return np.cos(angle) * a + np.sin(angle) * d
+
+
+def deviate_axes(
+    robot: Robot,
+    cell: Workcell,
+    positions: np.ndarray,
+    normals: np.ndarray,
+    stuck: np.ndarray,
+    collides: Callable[[np.ndarray], np.ndarray] | None,
+    p: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Tool axes for waypoints with no usable pose (``stuck``): keep the contact point c_j and tilt
+    t_j in rings of ``cell.axis_deviation_step`` up to ``cell.max_axis_deviation`` (towards the
+    vertical first) until some rotation θ and IK branch is inside the limits and collision-free.
+
+    A bounded deviation of an orientation the thesis itself low-passes (§3.5.2). Returns the axes
+    (m, 3) (unchanged where not stuck or where no tilt within the bound helps) and the deviation
+    (m,) rad (0 where unchanged)."""
+    axes = np.asarray(normals, float) / np.linalg.norm(normals, axis=1, keepdims=True)
+    deviation = np.zeros(len(axes))
+    angles = np.arange(1, int(np.floor(cell.max_axis_deviation / cell.axis_deviation_step + 1e-9)) + 1) \
+        * cell.axis_deviation_step
+    for j in np.flatnonzero(stuck):
+        for angle in angles:
+            found = None
+            for cand in tilted_axes(axes[j], angle):
+                if cand[2] <= -1 + 1e-9:
+                    continue
+                q, ok = ladder(robot, cell, positions[j][None], cand[None], p)
+                nodes = q[0, ok[0]]
+                if len(nodes) and (collides is None or not collides(nodes).all()):
+                    found = cand
+                    break
+            if found is not None:
+                axes[j], deviation[j] = found / np.linalg.norm(found), angle
+                break
+    return axes, deviation
+
+
 def unwind(q: np.ndarray, segment: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, list[int]]:
     """Actual joint values along a path: circular joints follow their shortest turns and are shifted
     by whole revolutions to stay inside their limits; where a segment would wind beyond a joint's
@@ -453,6 +505,8 @@ class PrintMotion:
     q: np.ndarray  # (R, 6) rad
     segment: np.ndarray  # (R,) global motion id; a new id is reached by a joint move
     extruding: np.ndarray  # (R,) bool, extruder on while moving to the row
+    normals: np.ndarray  # (R, 3) realized tool axis (the planned one unless deviated)
+    deviation: np.ndarray  # (R,) rad between the realized and the planned tool axis
     layers: list[dict]  # per layer: waypoints, rotations, splits, skipped, checks, seconds
 
 
@@ -477,7 +531,9 @@ def plan_print(
     (multi-source, like the thesis's per-tool-path graphs); layers are joined by joint moves.
 
     ``collides_for_layer(layer)`` returns the collision predicate valid while printing that layer
-    (the part then is the union of the earlier layers). ``progress(n)`` is told of n waypoints done.
+    (the part then is the union of the earlier layers). Waypoints left without a usable pose get a
+    deviated axis (:func:`deviate_axes`) and the layer is planned again with it. ``progress(n)`` is
+    told of n waypoints done.
     """
     positions = np.asarray(toolpaths["positions"], float)
     normals = np.asarray(toolpaths["normals"], float)
@@ -485,16 +541,26 @@ def plan_print(
     path_id = np.asarray(toolpaths["path"])
     feed = np.asarray(toolpaths["feed"], float)
     extrusion = np.asarray(toolpaths["extrusion"], float)
-    out_idx, out_t, out_q, out_seg, out_ext, stats = [], [], [], [], [], []
+    out_idx, out_t, out_q, out_seg, out_ext, out_axis, out_dev, stats = [], [], [], [], [], [], [], []
     clock, seg0, last_q = 0.0, 0, None
     for value in np.unique(layer):
         start = time.perf_counter()
         rows = np.flatnonzero(layer == value)
         speed = segment_speeds(path_id[rows], feed[rows], cell)
-        dt = step_times(positions[rows], speed, cell.min_step_time, normals[rows], cell.tool_turn_speed) \
-            if len(rows) > 1 else np.zeros(0)
         collides = collides_for_layer(int(value)) if collides_for_layer else None
-        motion = plan_motion(robot, cell, positions[rows], normals[rows], dt, collides, cost, None, max_rotations)
+        axes, deviation, tried = normals[rows], np.zeros(len(rows)), np.zeros(len(rows), bool)
+        while True:
+            dt = step_times(positions[rows], speed, cell.min_step_time, axes, cell.tool_turn_speed) \
+                if len(rows) > 1 else np.zeros(0)
+            motion = plan_motion(robot, cell, positions[rows], axes, dt, collides, cost, None, max_rotations)
+            stuck = (motion.segment < 0) & ~tried
+            if not stuck.any() or cell.max_axis_deviation <= 0:
+                break
+            axes, more = deviate_axes(robot, cell, positions[rows], axes, stuck, collides, motion.rotations)
+            tried |= stuck
+            if not (more > 0).any():
+                break
+            deviation = deviation + more
         done = motion.segment >= 0
         if done.any():
             first = motion.q[done][0]
@@ -508,6 +574,8 @@ def plan_print(
             out_q.append(motion.q[done])
             out_seg.append(seg_global)
             out_ext.append((extrusion[rows[done]] > 0) & ~starts)
+            out_axis.append(axes[done] / np.linalg.norm(axes[done], axis=1, keepdims=True))
+            out_dev.append(deviation[done])
             clock = float(out_t[-1][-1])
             seg0 = int(seg_global[-1]) + 1
             last_q = motion.q[done][-1]
@@ -520,6 +588,8 @@ def plan_print(
             "splits": [int(rows[s]) for s in motion.splits],
             "winding_splits": [int(rows[s]) for s in motion.winding_splits],
             "skipped": int((~done).sum()),
+            "deviated": int((deviation[done] > 0).sum()),
+            "max_deviation_deg": round(float(np.degrees(deviation[done].max())), 3) if done.any() else 0.0,
             "collision_checks": motion.collision_checks,
             "seconds": round(time.perf_counter() - start, 3),
         })
@@ -532,13 +602,16 @@ def plan_print(
         q=cat(out_q, (0, 6)),
         segment=cat(out_seg, (0,)).astype(np.int64),
         extruding=cat(out_ext, (0,)).astype(bool),
+        normals=cat(out_axis, (0, 3)),
+        deviation=cat(out_dev, (0,)),
         layers=stats,
     )
 
 
 def motion_summary(motion: PrintMotion, waypoints: int) -> dict[str, object]:
     """Figures of a planned print for ``report.json``: rows, IK solutions per waypoint, splits
-    (graph disconnections, Fig. 3.11b), winding splits, skipped waypoints, max joint step, p used."""
+    (graph disconnections, Fig. 3.11b), winding splits, skipped waypoints, waypoints printed with a
+    deviated tool axis and the largest deviation, max joint step, p used."""
     inside = motion.segment[1:] == motion.segment[:-1]
     step = np.abs(np.diff(motion.q, axis=0)).max(axis=1) if len(motion.q) > 1 else np.zeros(0)
     layers = motion.layers
@@ -546,6 +619,8 @@ def motion_summary(motion: PrintMotion, waypoints: int) -> dict[str, object]:
         "waypoints": waypoints,
         "rows": int(len(motion.q)),
         "skipped": int(sum(s["skipped"] for s in layers)),
+        "deviated": int((motion.deviation > 0).sum()),
+        "max_deviation_deg": round(float(np.degrees(motion.deviation.max())), 3) if len(motion.deviation) else 0.0,
         "segments": int(motion.segment.max() + 1) if len(motion.segment) else 0,
         "splits": int(sum(len(s["splits"]) for s in layers)),
         "winding_splits": int(sum(len(s["winding_splits"]) for s in layers)),

@@ -26,8 +26,18 @@ Workcell file (JSON; lengths in mm, angles in degrees, as a person edits it)::
       "travel_speed_mm_s": 50.0,      # jumps between paths
       "min_step_time_s": 0.008,       # floor on Δt (one controller cycle) for coincident waypoints
       "tool_turn_speed_deg_s": 30.0,  # ω̄: the tool axis turns at most this fast (0 = no limit)
-      "rotations": 30                 # p of §3.5.3 / n of Eq. 4.3
+      "rotations": 30,                # p of §3.5.3 / n of Eq. 4.3
+      "max_axis_deviation_deg": 20.0, # a waypoint may tilt its tool axis this far (0 = never)
+      "axis_deviation_step_deg": 2.5  # ... searched in steps of this size
     }
+
+Axis deviation: a waypoint whose planned orientation t_j has no collision-free pose (all p rotations ×
+all IK branches collide, typically the heater block meeting the platform at steep tilts next to it)
+may instead be printed about the same contact point with an axis tilted by at most
+``max_axis_deviation_deg`` from t_j, searched in rings of ``axis_deviation_step_deg`` (towards the
+vertical first). The thesis already low-passes orientations (§3.5.2), so a small bounded deviation
+keeps the deposition physically valid; every deviation is recorded in ``joints.csv`` and
+``report.json`` and the bound is checked by the verifier.
 
 Step times: Δt_j = max(‖c_{j+1} − c_j‖ / v̄, ∠(t_j, t_{j+1}) / ω̄, min_step). The thesis uses the
 first term only (§3.5.3); with tool-paths whose orientation turns up to 10° between samples
@@ -85,6 +95,8 @@ class Workcell:
     min_step_time: float = 0.008
     tool_turn_speed: float = np.radians(30.0)  # rad/s; 0 = no limit
     rotations: int = 30
+    max_axis_deviation: float = np.radians(20.0)  # rad; 0 = waypoints keep their planned axis
+    axis_deviation_step: float = np.radians(2.5)  # rad
 
     def limits(self, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
         """Joint limits (rad): the URDF's, narrowed by the workcell's own when given."""
@@ -185,10 +197,14 @@ def workcell_from_dict(spec: dict, source: str = "workcell") -> Workcell:
         min_step_time=float(spec.get("min_step_time_s", 0.008)),
         tool_turn_speed=float(np.radians(spec.get("tool_turn_speed_deg_s", 30.0))),
         rotations=int(spec.get("rotations", 30)),
+        max_axis_deviation=float(np.radians(spec.get("max_axis_deviation_deg", 20.0))),
+        axis_deviation_step=float(np.radians(spec.get("axis_deviation_step_deg", 2.5))),
     )
+    if not 0 <= cell.max_axis_deviation < np.pi / 2:
+        raise CurvsliceError(f"{source}: 'max_axis_deviation_deg' must be in [0, 90)")
     if cell.tool_turn_speed < 0:
         raise CurvsliceError(f"{source}: 'tool_turn_speed_deg_s' must be 0 (no limit) or positive")
-    for key in ("max_joint_speed", "linear_speed", "travel_speed", "min_step_time", "rotations"):
+    for key in ("max_joint_speed", "linear_speed", "travel_speed", "min_step_time", "rotations", "axis_deviation_step"):
         if getattr(cell, key) <= 0:
             raise CurvsliceError(f"{source}: '{key}' must be positive")
     return cell
@@ -217,6 +233,8 @@ def workcell_to_dict(cell: Workcell) -> dict[str, object]:
         min_step_time_s=cell.min_step_time,
         tool_turn_speed_deg_s=round(float(np.degrees(cell.tool_turn_speed)), 9),
         rotations=cell.rotations,
+        max_axis_deviation_deg=round(float(np.degrees(cell.max_axis_deviation)), 9),
+        axis_deviation_step_deg=round(float(np.degrees(cell.axis_deviation_step)), 9),
     )
     return out
 

@@ -13,12 +13,15 @@ from curvslice.collision import CollisionScene
 from curvslice.kinematics import fk, fk_reference, load_robot
 from curvslice.motion import (
     circular_joints,
+    deviate_axes,
     edge_weights,
+    ladder,
     plan_motion,
     reference_shortest_path,
     shortest_path,
     sparse_edges,
     step_times,
+    tilted_axes,
     unwind,
 )
 from curvslice.workcell import load_workcell, waypoints_from_flange
@@ -234,3 +237,42 @@ def test_circular_joints_of_the_shipped_robots():
     assert circular_joints(ur.lower, ur.upper).tolist() == [True, True, False, True, True, True]
     abb = load_robot("irb120")
     assert circular_joints(abb.lower, abb.upper).tolist() == [False] * 5 + [True]
+
+
+def test_tilted_axes_lie_on_the_cone_vertical_first():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a = rng.normal(size=3)
+        a /= np.linalg.norm(a)
+        angle = rng.uniform(0.01, 0.5)
+        d = tilted_axes(a, angle, 8)
+        np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
+        np.testing.assert_allclose(np.arccos(np.clip(d @ a, -1, 1)), angle, atol=1e-7)
+        assert d[0, 2] == pytest.approx(d[:, 2].max())  # towards +Z first ...
+        assert d[-1, 2] == pytest.approx(d[:, 2].min())  # ... away from it last
+    np.testing.assert_allclose(np.arccos(tilted_axes(np.array([0.0, 0, 1]), 0.2, 4)[:, 2]), 0.2)
+
+
+def _platform_waypoints(tilts_deg, height=1.0):
+    a = np.radians(np.asarray(tilts_deg, float))
+    c = np.stack([np.linspace(-2, 2, len(a)), np.zeros(len(a)), np.full(len(a), height)], 1)
+    return c, np.stack([np.sin(a), np.zeros(len(a)), np.cos(a)], 1)
+
+
+def test_axis_deviation_frees_a_waypoint_whose_heater_hits_the_platform(ur5):
+    """1 mm above the platform at 55° tilt the heater block (5.5 mm above the tip, 8 mm half-width)
+    dips below z = 0 (1 + 5.5 cos 55° − 8 sin 55° < 0) for every θ and branch; tilting back within
+    the 20° bound frees it, at 80° no tilt within the bound does."""
+    robot, cell = ur5
+    scene = CollisionScene(robot, cell)
+    c, t = _platform_waypoints([55.0, 80.0])
+    for j in range(2):
+        q, ok = ladder(robot, cell, c[j : j + 1], t[j : j + 1], cell.rotations)
+        assert scene.collisions(q[0, ok[0]]).all()  # the planned axis is unrealizable
+    axes, dev = deviate_axes(robot, cell, c, t, np.array([True, True]), scene.collisions, cell.rotations)
+    assert 0 < dev[0] <= cell.max_axis_deviation + 1e-12
+    assert np.arccos(np.clip(axes[0] @ t[0], -1, 1)) == pytest.approx(dev[0], abs=1e-9)
+    assert np.arccos(axes[0, 2]) < np.arccos(t[0, 2])  # towards the vertical
+    q, ok = ladder(robot, cell, c[:1], axes[:1], cell.rotations)
+    assert not scene.collisions(q[0, ok[0]]).all()
+    assert dev[1] == 0 and np.allclose(axes[1], t[1], atol=1e-15)  # beyond the bound: left as planned

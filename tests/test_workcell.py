@@ -66,6 +66,8 @@ def test_flange_poses_satisfy_eq_2_3():
         ({"rotations": 0}, "rotations"),
         ({"extruder": [{"name": "x", "type": "sphere"}]}, "type"),
         ({"joint_limits_deg": {"lower": [0] * 6, "upper": [0] * 6}}, "lower"),
+        ({"max_axis_deviation_deg": 95}, "max_axis_deviation_deg"),
+        ({"axis_deviation_step_deg": 0}, "axis_deviation_step"),
     ],
 )
 def test_bad_workcells_are_user_errors(patch, message):
@@ -190,3 +192,38 @@ def test_slice_cli_robot_stage_verifies(tmp_path):
     for name in ("FK reproduces waypoint position", "FK reproduces nozzle axis", "joint limits",
                  "joint speed within segments", "no collision at any row", "URScript program matches joints.csv"):
         assert results[name].passed, results[name]
+
+
+def test_deviated_axes_are_recorded_and_bounded_in_the_files(tmp_path):
+    """Near the platform: 30° waypoints print as planned, 55° ones only tilted back (the heater block
+    would dip under z = 0), one at 80° cannot be printed within the 20° bound. joints.csv carries the
+    realized axes; the verifier re-checks them against FK and the bound, and still fails the
+    unrealizable waypoint."""
+    tilt = np.r_[np.full(12, 30.0), np.full(3, 55.0), 80.0, np.full(8, 30.0)]
+    a = np.radians(tilt)
+    n = len(a)
+    pos = np.stack([np.linspace(-6, 6, n), np.zeros(n), np.where(tilt > 30, 1.0, 3.0)], 1)
+    nor = np.stack([np.sin(a), np.zeros(n), np.cos(a)], 1)
+    ext = np.r_[0.0, np.full(n - 1, 0.05)]
+    tp = dict(positions=pos, normals=nor, layer=np.ones(n, np.int32), path=np.ones(n, np.int32), extrusion=ext,
+              thickness=np.full(n, 0.8), feed=np.full(n, 600.0))
+    np.savez(tmp_path / "toolpaths.npz", **tp)
+    cell, robot = load_workcell("ur5"), load_robot("ur5")
+    scene = CollisionScene(robot, cell)
+    motion = plan_print(robot, cell, tp, lambda layer: scene.collisions)
+    write_robot_outputs(tmp_path, cell, robot.family, tp, motion)
+    rows = read_joints_csv(tmp_path / "joints.csv")
+    assert 15 not in rows["index"]  # the 80° waypoint is unrealizable
+    moved = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", rows["normals"], nor[rows["index"]]), -1, 1)))
+    assert set(rows["index"][moved > 1e-6]) == {12, 13, 14}
+    assert moved.max() <= 20 + 1e-9
+    assert np.allclose(np.degrees(motion.deviation), moved, atol=1e-6)
+    results = {c.name: c for c in verify_robot.checks(tmp_path)}
+    for name in ("axis deviation within bound", "FK reproduces nozzle axis", "FK reproduces waypoint position",
+                 "no collision at any row", "joint speed within segments"):
+        assert results[name].passed, results[name]
+    assert not results["waypoints realized"].passed
+    spec = json.loads((tmp_path / "workcell.json").read_text())
+    spec["max_axis_deviation_deg"] = float(moved.max()) / 2  # a tighter bound than realized: caught
+    (tmp_path / "workcell.json").write_text(json.dumps(spec))
+    assert not {c.name: c for c in verify_robot.checks(tmp_path)}["axis deviation within bound"].passed

@@ -175,7 +175,8 @@ def stage_robot(ctx: Context) -> None:
     if not a.quiet:
         r = ctx.report["robot"]
         print(f"robot: {r['rows']}/{n} waypoints, {r['segments']} motions ({r['splits']} splits), "
-              f"{r['skipped']} skipped, max joint step {r['max_joint_step_rad']:.4f} rad "
+              f"{r['skipped']} skipped, {r['deviated']} with the axis tilted (max {r['max_deviation_deg']:.1f} deg), "
+              f"max joint step {r['max_joint_step_rad']:.4f} rad "
               f"({ctx.report['timings_s']['robot']:.1f} s)")
 
 

@@ -55,8 +55,15 @@ def checks(outdir: Path) -> list[Check] | None:
     want_pos, want_axis = rows["positions"], rows["normals"]
     if tp is not None:
         want_pos = tp["positions"][rows["index"]]
-        want_axis = tp["normals"][rows["index"]]
-        want_axis = want_axis / np.linalg.norm(want_axis, axis=1, keepdims=True)
+        planned = tp["normals"][rows["index"]]
+        planned = planned / np.linalg.norm(planned, axis=1, keepdims=True)
+        dev = np.degrees(_angle(want_axis / np.linalg.norm(want_axis, axis=1, keepdims=True), planned)) if n else np.zeros(0)
+        bound = float(spec.get("max_axis_deviation_deg", 0.0))
+        moved = int((dev > np.degrees(AXIS_TOL)).sum())
+        top = float(dev.max()) if n else 0.0
+        out.append(Check(STAGE, "axis deviation within bound", top <= bound + 1e-6,
+                         f"{moved} rows, max {top:.2f} deg",
+                         f"realized axis (joints.csv) vs tool-path axis, bound {bound:g} deg (workcell.json)"))
         covered = len(np.unique(rows["index"]))
         total = len(tp["positions"])
         out.append(Check(STAGE, "waypoints realized", covered == total, f"{covered}/{total}",
@@ -67,7 +74,7 @@ def checks(outdir: Path) -> list[Check] | None:
     out.append(Check(STAGE, "FK reproduces waypoint position", pos_err <= POSITION_TOL, f"{pos_err:.2e} mm",
                      f"pinocchio FK of every row vs its waypoint (tol {POSITION_TOL} mm)"))
     out.append(Check(STAGE, "FK reproduces nozzle axis", ax_err <= AXIS_TOL, f"{ax_err:.2e} rad",
-                     f"tool orientation vs nozzle axis (tol {AXIS_TOL} rad)"))
+                     f"realized tool orientation (joints.csv) vs nozzle axis (tol {AXIS_TOL} rad)"))
 
     lo, hi = cell.limits(robot)
     excess = float(np.maximum(q - hi, lo - q).max()) if n else -1.0
