@@ -189,9 +189,27 @@ STAGES: list[tuple[str, Callable[[Context], None]]] = [
 ]
 
 
+DESCRIPTION = (
+    "Decompose a solid into curved, support-free, accessible layers (thesis §3.4), cover them with "
+    "Fermat-spiral tool-paths (§3.5.1-3.5.2) and, with --robot, plan pose-continuous robot motion "
+    "(§3.5.3). Writes one output folder: field.npz, solid.stl, layers/, toolpaths.gcode/.npz, robot "
+    "programs and report.json; check it with `curvslice verify OUTDIR`."
+)
+
+
+class _HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Shows defaults, except where the help text already explains them or there is none."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        if "default" in text or action.default in (None, False, argparse.SUPPRESS):
+            return text
+        return super()._get_help_string(action)
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("slice", help="slice a solid into curved, support-free layers (and beyond)",
-                       description=__doc__, formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       description=DESCRIPTION, formatter_class=_HelpFormatter)
     p.add_argument("model", help="mesh file (STL, OBJ, PLY, OFF), millimetres")
     p.add_argument("--out", help="output folder (default: MODELNAME_slice in the current folder)")
     p.add_argument("--force", action="store_true", help="replace an existing output folder")
