@@ -20,7 +20,7 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9):
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from time import perf_counter
 
@@ -50,6 +50,17 @@ _HARD_TILT = float(np.radians(85.0))
 _BRIDGE = 3.0
 #: Sharp corners (turn above this angle, radians) are kept as samples when re-sampling.
 _CORNER = np.radians(30.0)
+#: A connected region whose largest boundary distance is below this many path widths (narrower
+#: than 2·_THIN widths) is printed as one pass along its ridge with the bead as wide as the region
+#: (a loop there would lay its two sides less than a width apart, a centre pass of one width
+#: would leave both edges open).
+_THIN = 0.8
+#: Narrowest bead of such a pass, in path widths (a thinner region is over-filled, not skipped).
+_BEAD_MIN = 0.5
+#: A thin region whose ridge is shorter than this many widths is a blob, left to the contours.
+_WALL = 2.0
+#: Rounds of ridge passes through the branches of a thin region that earlier ridges leave open.
+_BRANCHES = 3
 
 
 @dataclass
@@ -73,9 +84,12 @@ class Ring:
 
 @dataclass
 class LayerPaths:
-    """Tool-path pieces of one layer (polylines, print order) and how they were made."""
+    """Tool-path pieces of one layer (polylines, print order), each vertex's bead width (mm),
+    and how they were made."""
 
     pieces: list[np.ndarray]
+    widths: list[np.ndarray] = field(default_factory=list)
+    thin_passes: int = 0  #: ridge passes of thin walls (bead as wide as the wall)
     rings: int = 0
     regions: int = 0
     splices: int = 0
@@ -540,7 +554,9 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
     :func:`gap_passes` through what they leave open when ``fill_gaps``. Holes narrower than
     ``_BRIDGE`` widths are bridged (:func:`bridge_small_holes`); a mesh coarser than half a width
-    is subdivided once (1 → 4 triangles) so the distance field and contours resolve the passes."""
+    is subdivided once (1 → 4 triangles) so the distance field and contours resolve the passes.
+    Regions narrower than ``2·_THIN`` widths get one ridge pass of their own width
+    (:func:`thin_passes`); every other vertex has the bead width ``width``."""
     surface = clean_surface(mesh)
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, _BRIDGE * np.pi * width)
     if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > 0.5 * width:
@@ -548,6 +564,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     if len(f) == 0:
         return LayerPaths(pieces=[])
     dist = boundary_distance(v, f)
+    f, thin, thin_widths = thin_passes(v, f, dist, width)
     closed = int(np.isnan(dist).any())
     finite = dist[np.isfinite(dist)]
     top = float(finite.max()) if len(finite) else 0.0
@@ -556,16 +573,11 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     rings = prune_islands(rings, bands.top, width)
     extra, lines = peak_rings(v, f, dist, levels, rings, bands, width)
     rings += extra
-    out = LayerPaths(pieces=[], rings=len(rings), closed_components=closed, max_distance=top, bridged_holes=bridged)
-    if not rings:
-        fill = gap_passes(v, f, lines, width) if fill_gaps else []
-        out.pieces = _order_pieces(lines + fill, start)
-        out.regions, out.gap_passes = len(lines), len(fill)
-        out.travel = float(sum(np.linalg.norm(b[0] - a[-1]) for a, b in zip(out.pieces[:-1], out.pieces[1:])))
-        return out
+    out = LayerPaths(pieces=[], rings=len(rings), closed_components=closed, max_distance=top,
+                     bridged_holes=bridged, thin_passes=len(thin))
     remaining = set(range(len(rings)))
     builder = _Builder(_Tree(rings, {}, {}), width)
-    cursor = np.asarray(start, float) if start is not None else rings[0].points[0]
+    cursor = np.asarray(start, float) if start is not None else (rings[0].points[0] if rings else None)
     while remaining:
         # root: the band-0 component of the outermost ring nearest to the cursor
         outer = [i for i in remaining if rings[i].level == _FIRST * width] or list(remaining)
@@ -581,14 +593,94 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
         out.regions += 1
         cursor = piece[-1]
     out.pieces.extend(builder.extra_pieces + lines)
-    out.regions += len(lines)
-    fill = gap_passes(v, f, out.pieces, width) if fill_gaps else []
+    out.regions += len(lines) + len(thin)
+    fill = gap_passes(v, f, out.pieces, width) if fill_gaps and len(f) else []
     out.pieces.extend(fill)
     out.gap_passes = len(fill)
     out.splices, out.failed_splices = builder.splices, builder.failed
-    out.pieces = _order_pieces(out.pieces, start)
+    widths = [np.full(len(p), width) for p in out.pieces] + thin_widths
+    out.pieces, out.widths = _order_pieces(out.pieces + thin, widths, start)
     out.travel = float(sum(np.linalg.norm(b[0] - a[-1]) for a, b in zip(out.pieces[:-1], out.pieces[1:])))
     return out
+
+
+def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
+                width: float) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+    """Passes along the ridge of each connected region narrower than ``2·_THIN`` widths.
+
+    Closes the medial-axis gap of thin walls (thesis §3.7) by varying the bead width through the
+    extrusion amount: the ridge of the boundary distance ``d`` is the region's centre line and
+    ``2·d`` there (the largest ``d`` within half a width) its local width, which becomes the bead width (clamped to
+    ``[_BEAD_MIN, 2·_THIN]`` widths). A ridge is the longest of the shortest paths over mesh
+    edges weighted by ``length / d²`` (cheap along the ridge); branches it leaves open (vertices
+    more than a quarter width beyond half a bead of it) get their own ridges, up to ``_BRANCHES`` rounds. Returns the faces of the other regions, the passes and
+    their per-vertex bead widths.
+    """
+    f = np.asarray(faces, np.int64)
+    edges = np.unique(np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1), axis=0)
+    n = len(vertices)
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    top = np.full(label.max() + 1, np.inf)
+    finite = np.isfinite(dist)
+    top[np.unique(label[finite])] = -np.inf
+    np.maximum.at(top, label[finite], dist[finite])
+    thin_label = np.nonzero(top < _THIN * width)[0]
+    passes, widths = [], []
+    if len(thin_label) == 0:
+        return f, passes, widths
+    thin_v = np.nonzero(np.isin(label, thin_label))[0]  # the thin regions' own graph (small)
+    e = np.searchsorted(thin_v, edges[np.isin(label[edges[:, 0]], thin_label)])
+    mid = np.maximum(0.5 * (dist[thin_v[e[:, 0]]] + dist[thin_v[e[:, 1]]]), 0.05 * width)
+    cost = np.linalg.norm(vertices[thin_v[e[:, 0]]] - vertices[thin_v[e[:, 1]]], axis=1) / mid**2
+    weighted = sp.coo_matrix((cost, (e[:, 0], e[:, 1])), shape=(len(thin_v),) * 2).tocsr()
+    weighted = weighted + weighted.T
+    done = []
+    for c in thin_label:
+        todo = np.nonzero(label[thin_v] == c)[0]
+        mine = len(passes)
+        for _ in range(_BRANCHES):
+            if len(todo) < 3:
+                break
+            sub = weighted[todo][:, todo]
+            n_patch, patch = connected_components(sub, directed=False)
+            for k in range(n_patch):
+                members = todo[patch == k]
+                if len(members) < 3:
+                    continue
+                ridge = thin_v[members[_longest_path(weighted[members][:, members])]]
+                pts = vertices[ridge].copy()
+                if len(passes) == mine and np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() < _WALL * width:
+                    break  # a blob, not a wall: the contours print it
+                if len(pts) > 2:
+                    pts[1:-1] = (pts[:-2] + pts[1:-1] + pts[2:]) / 3.0  # the edge path's zigzag smoothed
+                near = cKDTree(pts).sparse_distance_matrix(cKDTree(vertices[thin_v[members]]), 0.5 * width,
+                                                           output_type="coo_matrix")
+                half = dist[ridge].copy()  # the ridge of d near each point: an edge path runs beside it
+                np.maximum.at(half, near.row, dist[thin_v[members[near.col]]])
+                passes.append(pts)
+                widths.append(np.clip(2.0 * half, _BEAD_MIN * width, 2.0 * _THIN * width))
+            if len(passes) == mine:
+                break
+            done.append(c)
+            dense = np.vstack([resample(np.c_[p, b], 0.1 * width) for p, b in zip(passes[mine:], widths[mine:])])
+            gap, nearest = cKDTree(dense[:, :3]).query(vertices[thin_v[todo]])
+            todo = todo[gap > 0.5 * dense[nearest, 3] + 0.25 * width]
+    keep = ~np.isin(label[f[:, 0]], done)
+    return f[keep], passes, widths
+
+
+def _longest_path(graph: sp.csr_matrix) -> np.ndarray:
+    """Node indices of the longest shortest path found by two Dijkstra sweeps."""
+    d0 = dijkstra(graph, indices=0)
+    far = int(np.argmax(np.where(np.isfinite(d0), d0, -1)))
+    d1, pred = dijkstra(graph, indices=far, return_predecessors=True)
+    node = int(np.argmax(np.where(np.isfinite(d1), d1, -1)))
+    chain = [node]
+    while pred[node] >= 0:
+        node = int(pred[node])
+        chain.append(node)
+    return np.asarray(chain)
 
 
 def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray], width: float,
@@ -618,43 +710,42 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     passes = []
     for c in np.nonzero(sizes >= min_vertices)[0]:
         members = np.nonzero((label == c) & open_v)[0]
-        sub = graph[members][:, members]
-        far = np.argmax(dijkstra(sub, indices=0))
-        dist, pred = dijkstra(sub, indices=far, return_predecessors=True)
-        node = int(np.argmax(np.where(np.isfinite(dist), dist, -1)))
-        chain = [node]
-        while pred[node] >= 0:
-            node = int(pred[node])
-            chain.append(node)
-        if dist[chain[0]] >= width:
-            passes.append(v[members[chain]])
+        chain = members[_longest_path(graph[members][:, members])]
+        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= width:
+            passes.append(v[chain])
     return passes
 
 
-def _order_pieces(pieces: list[np.ndarray], start: np.ndarray | None) -> list[np.ndarray]:
-    """Greedy nearest-end ordering (pieces may be reversed) to shorten travels (§3.3.2 item 2)."""
-    left = list(pieces)
-    cursor = np.asarray(start, float) if start is not None else (left[0][0] if left else None)
-    ordered = []
+def _order_pieces(pieces: list[np.ndarray], widths: list[np.ndarray],
+                  start: np.ndarray | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Greedy nearest-end ordering (pieces may be reversed, with their vertex widths) to shorten
+    travels (§3.3.2 item 2)."""
+    left = list(zip(pieces, widths))
+    cursor = np.asarray(start, float) if start is not None else (left[0][0][0] if left else None)
+    ordered, ordered_w = [], []
     while left:
-        d0 = [np.linalg.norm(p[0] - cursor) for p in left]
-        d1 = [np.linalg.norm(p[-1] - cursor) for p in left]
+        d0 = [np.linalg.norm(p[0] - cursor) for p, _ in left]
+        d1 = [np.linalg.norm(p[-1] - cursor) for p, _ in left]
         i = int(np.argmin(np.minimum(d0, d1)))
-        p = left.pop(i)
-        p = p if d0[i] <= d1[i] else p[::-1]
+        p, wv = left.pop(i)
+        if d0[i] > d1[i]:
+            p, wv = p[::-1], wv[::-1]
         ordered.append(p)
+        ordered_w.append(wv)
         cursor = p[-1]
-    return ordered
+    return ordered, ordered_w
 
 
 def resample(polyline: np.ndarray, step: float) -> np.ndarray:
-    """Uniform re-sampling at spacing ≤ ``step`` (thesis §3.5.2: 1 mm) keeping sharp corners."""
+    """Uniform re-sampling at spacing ≤ ``step`` (thesis §3.5.2: 1 mm) keeping sharp corners.
+
+    Columns after the first three (x, y, z) are per-vertex values interpolated along the way."""
     p = np.asarray(polyline, np.float64)
-    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    seg = np.linalg.norm(np.diff(p[:, :3], axis=0), axis=1)
     p = p[np.r_[True, seg > 1e-9]]
     if len(p) < 2:
         return p[:1].copy()
-    d = np.diff(p, axis=0)
+    d = np.diff(p[:, :3], axis=0)
     u = d / np.linalg.norm(d, axis=1, keepdims=True)
     turn = np.arccos(np.clip(np.einsum("ij,ij->i", u[:-1], u[1:]), -1, 1))
     keep = np.r_[0, np.nonzero(turn > _CORNER)[0] + 1, len(p) - 1]
@@ -663,18 +754,21 @@ def resample(polyline: np.ndarray, step: float) -> np.ndarray:
     for a, b in zip(keep[:-1], keep[1:]):
         n = max(int(np.ceil((cum[b] - cum[a]) / step - 1e-9)), 1)
         s = np.linspace(cum[a], cum[b], n + 1)[:-1]
-        samples.append(np.column_stack([np.interp(s, cum[a:b + 1], p[a:b + 1, i]) for i in range(3)]))
+        samples.append(np.column_stack([np.interp(s, cum[a:b + 1], p[a:b + 1, i]) for i in range(p.shape[1])]))
     samples.append(p[-1:])
     return np.vstack(samples)
 
 
-def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.ndarray, width: float,
+def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.ndarray, width,
                       filament_diameter: float) -> np.ndarray:
-    """Filament length per segment (0 at each piece's first sample), thickness averaged on it."""
+    """Filament length per segment (0 at each piece's first sample), thickness and bead width
+    (a number or one per sample) averaged on it; a bead is never narrower than it is high."""
     pos = np.asarray(positions, np.float64)
     seg = np.r_[0.0, np.linalg.norm(np.diff(pos, axis=0), axis=1)]
     h = np.r_[thickness[0], 0.5 * (thickness[1:] + thickness[:-1])]
-    e = filament_length(seg, width, h, filament_diameter)
+    b = np.broadcast_to(np.asarray(width, np.float64), h.shape)
+    b = np.r_[b[0], 0.5 * (b[1:] + b[:-1])]
+    e = filament_length(seg, np.maximum(b, h), h, filament_diameter)
     first = np.r_[True, path_id[1:] != path_id[:-1]]
     e[first] = 0.0
     return e
@@ -719,6 +813,7 @@ class Toolpaths:
     extrusion: np.ndarray
     thickness: np.ndarray
     feed: np.ndarray
+    bead: np.ndarray  #: bead width per sample (mm), encoded in ``extrusion``
     layers: list[dict[str, float]]
     seconds: dict[str, float]
 
@@ -731,7 +826,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     layers before it (Eq. 3.3). ``progress`` is an optional tqdm-like object updated per layer.
     """
     w = settings.path_width
-    out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness")}
+    out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness", "bead")}
     earlier: list[tuple[np.ndarray, cKDTree]] = []
     per_layer: list[dict[str, float]] = []
     seconds = {"spirals": 0.0, "orientation": 0.0}
@@ -740,7 +835,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         t0 = perf_counter()
         surface = clean_surface(mesh)
         paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps)
-        samples = [resample(p, settings.step) for p in paths.pieces]
+        samples = [resample(np.c_[p, b], settings.step) for p, b in zip(paths.pieces, paths.widths)]
         samples = [s for s in samples if len(s) >= 2]
         t1 = perf_counter()
         tri = surface.triangles
@@ -749,10 +844,11 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
                "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
                "splices": paths.splices, "failed_splices": paths.failed_splices,
                "closed_components": paths.closed_components, "gap_passes": paths.gap_passes,
-               "bridged_holes": paths.bridged_holes, "max_distance_mm": round(paths.max_distance, 3),
+               "bridged_holes": paths.bridged_holes, "thin_passes": paths.thin_passes, "max_distance_mm": round(paths.max_distance, 3),
                "samples": 0, "length_mm": 0.0}
         if samples:
             q = np.vstack(samples)
+            q, bead = q[:, :3], q[:, 3]
             pid = np.repeat(np.arange(next_path, next_path + len(samples)), [len(s) for s in samples])
             next_path += len(samples)
             cursor = q[-1]
@@ -779,9 +875,10 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             out["layer"].append(np.full(len(pos), index, np.int32))
             out["path"].append(pid[parent].astype(np.int32))
             out["thickness"].append(thick[parent] + frac * (thick[nxt] - thick[parent]))
+            out["bead"].append(bead[parent] + frac * (bead[nxt] - bead[parent]))
             row["samples"] = len(pos)
             row["subdivided"] = int(len(pos) - len(q))
-            row["length_mm"] = round(float(sum(np.linalg.norm(np.diff(s, axis=0), axis=1).sum() for s in samples)), 3)
+            row["length_mm"] = round(float(sum(np.linalg.norm(np.diff(s[:, :3], axis=0), axis=1).sum() for s in samples)), 3)
         if len(tri):
             earlier.append((tri, own_tree))
         t2 = perf_counter()
@@ -793,9 +890,10 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             progress.update(1)
     cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("positions", "normals") else 0)) for k, v in out.items()}
     path = cat["path"].astype(np.int32)
-    extrusion = extrusion_amounts(cat["positions"], path, cat["thickness"], w, settings.filament_diameter) if len(path) else np.zeros(0)
+    bead = np.maximum(cat["bead"], cat["thickness"]) if len(path) else np.zeros(0)
+    extrusion = extrusion_amounts(cat["positions"], path, cat["thickness"], bead, settings.filament_diameter) if len(path) else np.zeros(0)
     return Toolpaths(cat["positions"], cat["normals"], cat["layer"].astype(np.int32), path, extrusion,
-                     cat["thickness"], np.full(len(path), settings.feed), per_layer, seconds)
+                     cat["thickness"], np.full(len(path), settings.feed), bead, per_layer, seconds)
 
 
 def save_toolpaths(outdir: Path, tp: Toolpaths, settings: ToolpathSettings) -> None:

@@ -240,3 +240,41 @@ def test_kitten_coarse_toolpaths_verify(tmp_path, shared_model):
     import json
     report = json.loads((out / "report.json").read_text())["toolpaths"]
     assert report["coverage_mean"] >= 0.92 and report["overlap_max"] <= 0.15
+
+
+@pytest.mark.parametrize("strip", [0.7, 1.3])
+def test_thin_wall_is_one_ridge_pass_as_wide_as_the_wall(strip):
+    """A wall narrower than 1.6 widths: a loop would lay its sides < 1 width apart (overlap), one
+    bead of one width would leave its edges open; one ridge pass of the wall's width does neither."""
+    width = 1.0
+    mesh = polygon_mesh(sg.box(0, 0, 20, strip * width), 0.1)
+    result = layer_paths(mesh, width)
+    assert result.thin_passes == 1 and len(result.pieces) == 1
+    path, bead = result.pieces[0], result.widths[0]
+    middle = (path[:, 0] > 2) & (path[:, 0] < 18)
+    assert np.abs(path[middle, 1] - 0.5 * strip).max() < 0.1 * width  # on the centre line
+    assert np.median(bead[middle]) == pytest.approx(max(strip, 0.5) * width, rel=0.1)
+    s = resample(np.c_[path, bead], 0.5)
+    ids = np.zeros(len(s), int)
+    coverage, overlap = layer_cover(mesh, s[:, :3], ids, width, bead=s[:, 3])
+    assert coverage >= 0.95 and overlap <= 0.05
+    if strip > 1:  # the same pass with beads of one width leaves both edges open
+        assert layer_cover(mesh, s[:, :3], ids, width)[0] < coverage - 0.1
+
+
+def test_verifier_recovers_bead_width_from_extrusion():
+    """Extrusion made from per-sample bead widths; the verifier's inverse of the stadium section
+    returns each segment's mean width (a path's first sample: its first segment's)."""
+    from curvslice.verify.toolpaths import bead_widths
+
+    rng = np.random.default_rng(3)
+    pos = np.cumsum(rng.uniform(0.2, 1.0, (12, 3)), axis=0)
+    path = np.array([0] * 5 + [1] * 7)
+    thickness = rng.uniform(0.2, 0.4, 12)
+    bead = rng.uniform(0.5, 1.5, 12)
+    e = extrusion_amounts(pos, path, thickness, bead, 1.75)
+    got = bead_widths(pos, path, e, thickness, 1.75)
+    expect = 0.5 * (bead[1:] + bead[:-1])
+    printed = path[1:] == path[:-1]
+    assert np.allclose(got[1:][printed], expect[printed])
+    assert got[0] == pytest.approx(expect[0]) and got[5] == pytest.approx(expect[5])

@@ -131,12 +131,13 @@ def stage_toolpaths(ctx: Context) -> None:
         tp = plan_toolpaths(layers, settings, progress=bar)
         save_toolpaths(ctx.out, tp, settings)
     ctx.data["toolpaths"] = tp
-    cover = [layer_cover(m, tp.positions[tp.layer == i], tp.path[tp.layer == i], settings.path_width, seed=i)
-             for i, m in enumerate(layers, start=1) if len(m.faces)]
+    cover = [layer_cover(m, tp.positions[tp.layer == i], tp.path[tp.layer == i], settings.path_width, seed=i,
+                         bead=tp.bead[tp.layer == i]) for i, m in enumerate(layers, start=1) if len(m.faces)]
     rows = tp.layers
     ctx.report["toolpaths"] = {
         "path_width_mm": settings.path_width, "samples": len(tp.positions), "pieces": sum(r["pieces"] for r in rows),
         "jumps": sum(r["jumps"] for r in rows), "gap_passes": sum(r["gap_passes"] for r in rows),
+        "thin_passes": sum(r["thin_passes"] for r in rows),
         "travel_mm": round(sum(r["travel_mm"] for r in rows), 3), "length_mm": round(sum(r["length_mm"] for r in rows), 3),
         "filament_mm": round(float(tp.extrusion.sum()), 3),
         "coverage_min": round(min((c for c, _ in cover), default=0.0), 4),

@@ -1,8 +1,11 @@
 """Re-check of the tool-path stage from ``toolpaths.npz``, ``toolpaths.gcode`` and ``layers/``.
 
 Recomputed here without the tool-path code (thesis §3.3.2 "surface covering", §3.5.2):
-coverage (share of each layer's area within half a path width of its path), overlap (share of
-the area within half a width of two passes of the path), orientation continuity (consecutive
+coverage (share of each layer's area within half a bead width of its path), overlap (share of
+the area within half a bead width of two passes of the path), with each segment's bead width the
+one its extrusion deposits: the stadium section ``h·(b − h) + π h²/4`` (h the segment's
+thickness) of the filament volume ``E·π d²/4`` spread over the segment's length, solved for ``b``
+(d from the G-code header; a path's first sample takes its first segment's width), orientation continuity (consecutive
 samples of one piece within 10°), orientation validity (unit, on the unprinted side of the
 layer), samples lying on their layer, extrusion sanity and the G-code agreeing with the arrays.
 """
@@ -23,19 +26,19 @@ COVERAGE_MIN = 0.95
 OVERLAP_MAX = 0.05
 CONTINUITY_MIN = 0.99
 MAX_STEP_ANGLE = np.radians(10.0)
-_HEADER = re.compile(r"^;\s*path_width\s*=\s*([-+0-9.eE]+)")
+_HEADER = re.compile(r"^;\s*(path_width|filament_diameter)\s*=\s*([-+0-9.eE]+)")
 _MOVE = re.compile(r"^(G0|G1)\s")
 _NUM = re.compile(r"(nX|nY|nZ|[XYZEF])([-+]?[0-9.]+)")
 
 
-def _gcode_arrays(path: Path) -> tuple[float | None, np.ndarray, np.ndarray, np.ndarray]:
-    """Path width from the header, and positions, normals, E increments of the moves."""
-    width, rows, e_prev = None, [], 0.0
+def _gcode_arrays(path: Path) -> tuple[dict[str, float], np.ndarray, np.ndarray, np.ndarray]:
+    """Path width and filament diameter from the header, and positions, normals, E increments."""
+    header, rows, e_prev = {}, [], 0.0
     state = {"X": 0.0, "Y": 0.0, "Z": 0.0, "nX": 0.0, "nY": 0.0, "nZ": 1.0, "E": 0.0}
     for line in path.read_text().splitlines():
         head = _HEADER.match(line)
         if head:
-            width = float(head.group(1))
+            header[head.group(1)] = float(head.group(2))
         if not _MOVE.match(line):
             continue
         state.update({k: float(v) for k, v in _NUM.findall(line.split(";")[0])})
@@ -43,11 +46,12 @@ def _gcode_arrays(path: Path) -> tuple[float | None, np.ndarray, np.ndarray, np.
         e_prev = state["E"]
         rows.append([state[k] for k in ("X", "Y", "Z", "nX", "nY", "nZ")] + [inc])
     arr = np.asarray(rows, float).reshape(-1, 7)
-    return width, arr[:, :3], arr[:, 3:6], arr[:, 6]
+    return header, arr[:, :3], arr[:, 3:6], arr[:, 6]
 
 
-def _densify(positions: np.ndarray, path: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray]:
-    """Points every ≤ ``spacing`` along each piece, with a key = piece offset + arclength."""
+def _densify(positions: np.ndarray, path: np.ndarray, spacing: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points every ≤ ``spacing`` along each piece, with a key = piece offset + arclength, and
+    the sample ending the segment each point lies on (a sample itself for the samples)."""
     seg = np.linalg.norm(np.diff(positions, axis=0), axis=1)
     same = path[1:] == path[:-1]
     arclen = np.r_[0.0, np.cumsum(np.where(same, seg, 0.0))]
@@ -57,30 +61,56 @@ def _densify(positions: np.ndarray, path: np.ndarray, spacing: float) -> tuple[n
     u = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / np.maximum(n[i], 1)
     pts = np.vstack([positions[i] + u[:, None] * (positions[i + 1] - positions[i]), positions])
     keys = np.r_[key[i] + u * (key[i + 1] - key[i]), key]
-    return pts, keys
+    return pts, keys, np.r_[i + 1, np.arange(len(positions))]
+
+
+def bead_widths(positions: np.ndarray, path: np.ndarray, extrusion: np.ndarray, thickness: np.ndarray,
+                filament_diameter: float) -> np.ndarray:
+    """Bead width deposited on the segment ending at each sample, from its extrusion (stadium
+    section of the segment's mean thickness); a path's first sample gets its first segment's."""
+    seg = np.r_[0.0, np.linalg.norm(np.diff(positions, axis=0), axis=1)]
+    h = np.r_[thickness[:1], 0.5 * (thickness[1:] + thickness[:-1])]
+    with np.errstate(all="ignore"):
+        area = extrusion * np.pi * filament_diameter**2 / 4 / seg
+        b = (area - np.pi * h**2 / 4) / h + h
+    first = np.r_[True, path[1:] != path[:-1]]
+    b[first | ~(seg > 1e-9)] = np.nan
+    starts = np.nonzero(first[:-1] & ~first[1:])[0]
+    b[starts] = b[starts + 1]
+    return b
 
 
 def layer_cover(mesh: trimesh.Trimesh, positions: np.ndarray, path: np.ndarray, width: float,
-                seed: int = 0, max_samples: int = 20000) -> tuple[float, float]:
-    """(coverage, overlap) of one layer, by area-weighted random samples of the surface."""
+                seed: int = 0, max_samples: int = 20000, bead: np.ndarray | None = None) -> tuple[float, float]:
+    """(coverage, overlap) of one layer, by area-weighted random samples of the surface.
+
+    ``bead`` is the bead width of the segment ending at each sample (default: ``width``); a
+    surface sample is covered by the path points within half their bead width, and overlapped
+    when those points are more than twice the larger of ``width`` and their widest bead apart
+    along the path (two passes, not one bead's own breadth).
+    """
     if mesh.area <= 0:
         return 1.0, 0.0
     count = int(min(max(mesh.area / (0.2 * width * width), 500), max_samples))
     pts, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
     if len(positions) == 0:
         return 0.0, 0.0
-    dense, keys = _densify(positions, path, 0.1 * width)
-    pairs = cKDTree(pts).sparse_distance_matrix(cKDTree(dense), 0.5 * width, output_type="coo_matrix")
-    rows = pairs.row
+    bead = np.full(len(positions), width) if bead is None else np.where(np.isfinite(bead), np.maximum(bead, 0.0), width)
+    dense, keys, sample = _densify(positions, path, 0.1 * width)
+    dense_bead = bead[sample]
+    pairs = cKDTree(pts).sparse_distance_matrix(cKDTree(dense), 0.5 * float(dense_bead.max()), output_type="coo_matrix")
+    inside = pairs.data <= 0.5 * dense_bead[pairs.col]
+    rows, cols = pairs.row[inside], pairs.col[inside]
     covered = np.zeros(count, bool)
     covered[rows] = True
     if len(rows) == 0:
         return 0.0, 0.0
     order = np.argsort(rows, kind="stable")
-    r, k = rows[order], keys[pairs.col[order]]
+    r, k, b = rows[order], keys[cols[order]], dense_bead[cols[order]]
     starts = np.r_[0, np.nonzero(np.diff(r))[0] + 1]
     spread = np.maximum.reduceat(k, starts) - np.minimum.reduceat(k, starts)
-    return float(covered.mean()), float(np.mean(np.isin(np.arange(count), r[starts][spread > 2.0 * width])))
+    reach = 2.0 * np.maximum(np.maximum.reduceat(b, starts), width)
+    return float(covered.mean()), float(np.mean(np.isin(np.arange(count), r[starts][spread > reach])))
 
 
 def checks(outdir: Path) -> list[Check] | None:
@@ -97,16 +127,17 @@ def checks(outdir: Path) -> list[Check] | None:
         results.append(Check(STAGE, name, bool(passed), value, detail))
 
     gcode_path = outdir / "toolpaths.gcode"
-    width = None
+    header: dict[str, float] = {}
     if gcode_path.exists():
-        width, g_pos, g_nrm, g_ext = _gcode_arrays(gcode_path)
+        header, g_pos, g_nrm, g_ext = _gcode_arrays(gcode_path)
         same_len = len(g_pos) == len(pos)
         err = float(np.abs(g_pos - pos).max()) if same_len and len(pos) else np.inf if not same_len else 0.0
         add("gcode matches npz", same_len and err <= 1e-3 and np.allclose(g_ext, extrusion, atol=1e-5),
             f"{len(g_pos)} moves, max |Δp| {err:.1e} mm", "" if same_len else f"npz has {len(pos)} samples")
     else:
         add("gcode present", False, "missing", "toolpaths.gcode not written")
-    width = width if width is not None else 1.0
+    width = header.get("path_width", 1.0)
+    bead = bead_widths(pos, path, extrusion, data["thickness"], header.get("filament_diameter", 1.75))
 
     first = np.r_[True, path[1:] != path[:-1]]
     seg = np.r_[0.0, np.linalg.norm(np.diff(pos, axis=0), axis=1)]
@@ -126,7 +157,7 @@ def checks(outdir: Path) -> list[Check] | None:
     for number, lf in enumerate(layer_files, start=1):
         mesh = trimesh.load(lf, process=False, force="mesh")
         mask = layer == number
-        cov, ovl = layer_cover(mesh, pos[mask], path[mask], width, seed=number)
+        cov, ovl = layer_cover(mesh, pos[mask], path[mask], width, seed=number, bead=bead[mask])
         coverage.append(cov)
         overlap.append(ovl)
         if mask.any() and len(mesh.faces):
