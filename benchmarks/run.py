@@ -339,8 +339,10 @@ def _model_path(name: str, quick: bool) -> Path:
 
 def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, methods: tuple[str, ...] = METHODS,
               robot: str | None = "ur5", models: tuple[str, ...] | None = None, sweep: bool = True,
-              timeout: float | None = None, quiet: bool = False) -> dict[str, object]:
-    """Standard cases (+ the size sweep) → the JSON record written by :func:`write_outputs`."""
+              timeout: float | None = None, quiet: bool = False,
+              checkpoint: Callable[[dict[str, object]], None] | None = None) -> dict[str, object]:
+    """Standard cases (+ the size sweep) → the JSON record written by :func:`write_outputs`;
+    ``checkpoint(result)`` is called after every case with the record so far (``complete`` False)."""
     standard = QUICK_STANDARD if quick else STANDARD
     if models:
         unknown = set(models) - {m for m, _ in standard}
@@ -354,18 +356,24 @@ def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, met
         "settings": {"repeat": repeat, "budget_s": budget, "timeout_s": timeout, "methods": list(methods), "robot": robot,
                      "robot_waypoints": target, "standard": [list(c) for c in standard],
                      "sweep": {"model": sweep_model, "voxels_mm": list(sweep_sizes)} if sweep else None},
-        "standard": [], "sweep": [],
+        "standard": [], "sweep": [], "complete": False,
     }
     start = time.perf_counter()
+
+    def done(kind: str, case: dict[str, object]) -> None:
+        out[kind].append(case)
+        out["machine"]["loadavg_end"] = list(os.getloadavg())
+        out["wall_s"] = round(time.perf_counter() - start, 1)
+        if checkpoint:
+            checkpoint(out)
+
     for name, voxel in standard:
-        out["standard"].append(run_case(_model_path(name, quick), voxel, methods=methods, robot=robot,
-                                        robot_waypoints=target, repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
-    if sweep:
-        for voxel in sweep_sizes:
-            out["sweep"].append(run_case(_model_path(sweep_model, quick), voxel, methods=("pg-sp-gcfa",), robot=None,
-                                         repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
-    out["machine"]["loadavg_end"] = list(os.getloadavg())
-    out["wall_s"] = round(time.perf_counter() - start, 1)
+        done("standard", run_case(_model_path(name, quick), voxel, methods=methods, robot=robot, robot_waypoints=target,
+                                  repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
+    for voxel in sweep_sizes if sweep else ():
+        done("sweep", run_case(_model_path(sweep_model, quick), voxel, methods=("pg-sp-gcfa",), robot=None,
+                               repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
+    out["complete"] = True
     return out
 
 
@@ -437,6 +445,9 @@ def markdown(result: dict[str, object]) -> str:
         f"- load average at start {', '.join(f'{x:.2f}' for x in m['loadavg_start'])}, at end "
         f"{', '.join(f'{x:.2f}' for x in m.get('loadavg_end', []))}; suite wall time {result.get('wall_s', 0):,.0f} s",
     ]
+    if not result.get("complete", True):
+        done = len(result["standard"]) + len(result.get("sweep") or [])
+        lines.append(f"- **partial run**: {done} case(s) written so far; the suite was still running or was stopped")
     if max(m["loadavg_start"][0], *(m.get("loadavg_end") or [0])) > 0.5 * m["nproc"]:
         lines.append(f"- **the machine was shared during the run** (load average above {0.5 * m['nproc']:g} on "
                      f"{m['nproc']} cores): figures are upper bounds")
@@ -602,7 +613,8 @@ def plot(result: dict[str, object], path: Path) -> Path:
         ax.set_xlabel("voxels")
         ax.set_ylabel("median wall time (s)")
         ax.set_title(f"size sweep: {sweep[0]['model']} at " + ", ".join(f"{c['voxel_mm']:g}" for c in sweep) + " mm")
-        ax.legend(fontsize=7)
+        if ax.lines:
+            ax.legend(fontsize=7)
         ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path)
@@ -632,11 +644,12 @@ def execute(args) -> int:
     """Run the suite from parsed options and write its outputs."""
     if args.repeat < 1 or args.budget < 0:
         raise CurvsliceError("--repeat must be at least 1 and --budget non-negative")
+    out = Path(args.out) if args.out else (Path.cwd() / "bench_quick" if args.quick else REPO / "benchmarks")
     result = run_suite(quick=args.quick, repeat=args.repeat, budget=args.budget, methods=tuple(args.methods),
                        robot=None if str(args.robot).lower() == "none" else args.robot,
                        models=tuple(args.models) if args.models else None, sweep=not args.no_sweep,
-                       timeout=args.stage_timeout or None, quiet=args.quiet)
-    out = Path(args.out) if args.out else (Path.cwd() / "bench_quick" if args.quick else REPO / "benchmarks")
+                       timeout=args.stage_timeout or None, quiet=args.quiet,
+                       checkpoint=lambda partial: write_outputs(partial, out))
     for path in write_outputs(result, out):
         print(f"wrote {path}")
     return 0
