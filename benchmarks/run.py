@@ -249,7 +249,10 @@ def _downstream(rec: Recorder, solid, grid, growing, platform, robot: str | None
                            "layers_with_paths": int(len(np.unique(tp.layer)))}
     motion, tpd, cell, family = None, None, None, None
     if robot and len(tp.positions):
-        motion, tpd, cell, family = _robot(rec, tp, layers, platform, robot, robot_waypoints, counts)
+        try:
+            motion, tpd, cell, family = _robot(rec, tp, layers, platform, robot, robot_waypoints, counts)
+        except StageTimeout:
+            pass  # recorded as stopped; the export below then writes the tool-paths only
     with tempfile.TemporaryDirectory() as tmp:
         def export() -> None:
             save_toolpaths(Path(tmp), tp, settings)
