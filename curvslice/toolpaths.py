@@ -788,7 +788,9 @@ class ToolpathSettings:
     filament_diameter: float = 1.75
     feed: float = 600.0  #: nozzle speed along the path, mm/min
     max_angle: float = float(np.radians(10.0))  #: low-pass / slerp threshold (§3.5.2)
-    max_tilt: float = float(np.radians(75.0))  #: largest angle between orientation and layer normal
+    #: largest angle between orientation and layer normal: the shipped nozzle cone has a 40° half-angle,
+    #: so past ~50° it would cut the layer; 40° let every kitten waypoint reach a collision-free pose
+    max_tilt: float = float(np.radians(40.0))
     window: int = 8  #: earlier layers searched for the closest point (Eq. 3.3)
     fill_gaps: bool = True  #: extra passes through strips the spirals leave open (more jumps)
 

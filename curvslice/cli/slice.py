@@ -237,7 +237,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--step", type=float, default=1.0, help="re-sampling distance along the paths, mm (§3.5.2)")
     g.add_argument("--filament", type=float, default=1.75, help="filament diameter, mm")
     g.add_argument("--feed", type=float, default=600.0, help="nozzle speed along the paths, mm/min")
-    g.add_argument("--max-tilt", type=float, default=75.0, help="largest angle between tool and layer normal, degrees")
+    g.add_argument("--max-tilt", type=float, default=40.0,
+                   help="largest angle between tool and layer normal, degrees (the shipped nozzle cone clears 40)")
     g.add_argument("--no-gap-passes", action="store_true", help="spirals only: no extra passes through the gaps they leave")
     g = p.add_argument_group("robot (§3.5.3, §4.3.1)")
     g.add_argument("--robot", type=_workcell_arg, help=f"workcell: {', '.join(ROBOT_NAMES)} (shipped) or a workcell JSON file; "
