@@ -136,12 +136,13 @@ class _Front:
             sub = stack.pop()
             self.stats.shadow_tests += 1
             test = grow(acc_hull, self.pts[sub])
-            watch = s_p[pending & ~np.isin(s_p, sub)]
+            in_sub = np.isin(s_p, sub)
+            watch = s_p[pending & ~in_sub]
             hit = inside(test, self.pts[watch], self.eps)
             if not hit.any():
                 accepted.append(sub)
                 acc_hull = test
-                pending &= ~np.isin(s_p, sub)
+                pending &= ~in_sub
             elif len(sub) > 1:
                 stack.extend(_split(self.pts, sub, self.pts[watch[hit]], acc_hull, self.eps)[::-1])
         if not accepted:

@@ -5,7 +5,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import trimesh
 
 from curvslice.convex_front import grow, hull_of, inside, newly_inside, plane_distance
 from curvslice.growing_field import ASN_OFFSETS, growing_field
