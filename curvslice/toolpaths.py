@@ -20,6 +20,7 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9):
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from time import perf_counter
@@ -61,6 +62,14 @@ _BEAD_MIN = 0.5
 _WALL = 2.0
 #: Rounds of ridge passes through the branches of a thin region that earlier ridges leave open.
 _BRANCHES = 3
+#: Bead widths the extruder lays by flow alone, in path widths (narrowest, widest): see :func:`fit_beads`.
+_BEAD_RANGE = (_BEAD_MIN, 2.0 * _THIN)
+#: :func:`fit_beads`: spacing of the fitted pass points and of the boundary samples (widths), surface
+#: area per random sample (widths²), half-window of the running max in pass points (the running
+#: mean and the normal use twice as many).
+_FIT_STEP = 0.1
+_FIT_SAMPLE = 0.02
+_FIT_HALF = 3
 
 
 @dataclass
@@ -550,13 +559,15 @@ def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: f
 
 
 def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
-                fill_gaps: bool = True) -> LayerPaths:
+                fill_gaps: bool = True, min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerPaths:
     """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
     :func:`gap_passes` through what they leave open when ``fill_gaps``. Holes narrower than
     ``_BRIDGE`` widths are bridged (:func:`bridge_small_holes`); a mesh coarser than half a width
     is subdivided once (1 → 4 triangles) so the distance field and contours resolve the passes.
     Regions narrower than ``2·_THIN`` widths get one ridge pass of their own width
-    (:func:`thin_passes`); every other vertex has the bead width ``width``."""
+    (:func:`thin_passes`). Every pass is then freed of self-crossings (:func:`uncross`) and its
+    bead fitted to the strip of surface it covers (:func:`fit_beads`; ``min_bead(points)`` gives
+    the narrowest bead there, the local layer thickness)."""
     surface = clean_surface(mesh)
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, _BRIDGE * np.pi * width)
     if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > 0.5 * width:
@@ -564,7 +575,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     if len(f) == 0:
         return LayerPaths(pieces=[])
     dist = boundary_distance(v, f)
-    f, thin, thin_widths = thin_passes(v, f, dist, width)
+    f, thin = thin_passes(v, f, dist, width)
     closed = int(np.isnan(dist).any())
     finite = dist[np.isfinite(dist)]
     top = float(finite.max()) if len(finite) else 0.0
@@ -598,23 +609,24 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     out.pieces.extend(fill)
     out.gap_passes = len(fill)
     out.splices, out.failed_splices = builder.splices, builder.failed
-    widths = [np.full(len(p), width) for p in out.pieces] + thin_widths
-    out.pieces, out.widths = _order_pieces(out.pieces + thin, widths, start)
+    pieces, widths = fit_beads(surface, out.pieces + thin, width, min_bead=min_bead)
+    orders = [uncross(p, width) for p in pieces]
+    pieces, widths = [p[o] for p, o in zip(pieces, orders)], [b[o] for b, o in zip(widths, orders)]
+    out.pieces, out.widths = _order_pieces(pieces, widths, start)
     out.travel = float(sum(np.linalg.norm(b[0] - a[-1]) for a, b in zip(out.pieces[:-1], out.pieces[1:])))
     return out
 
 
 def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
-                width: float) -> tuple[np.ndarray, list[np.ndarray], list[np.ndarray]]:
+                width: float) -> tuple[np.ndarray, list[np.ndarray]]:
     """Passes along the ridge of each connected region narrower than ``2·_THIN`` widths.
 
     Closes the medial-axis gap of thin walls (thesis §3.7) by varying the bead width through the
     extrusion amount: the ridge of the boundary distance ``d`` is the region's centre line and
-    ``2·d`` there (the largest ``d`` within half a width) its local width, which becomes the bead width (clamped to
-    ``[_BEAD_MIN, 2·_THIN]`` widths). A ridge is the longest of the shortest paths over mesh
+    ``2·d`` there (the largest ``d`` within half a width) its local width, the bead it needs (clamped to
+    ``[_BEAD_MIN, 2·_THIN]`` widths; :func:`fit_beads` sets the final one). A ridge is the longest of the shortest paths over mesh
     edges weighted by ``length / d²`` (cheap along the ridge); branches it leaves open (vertices
-    more than a quarter width beyond half a bead of it) get their own ridges, up to ``_BRANCHES`` rounds. Returns the faces of the other regions, the passes and
-    their per-vertex bead widths.
+    more than a quarter width beyond half a bead of it) get their own ridges, up to ``_BRANCHES`` rounds. Returns the faces of the other regions and the passes.
     """
     f = np.asarray(faces, np.int64)
     n = len(vertices)
@@ -630,7 +642,7 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
     thin_label = np.nonzero(top < _THIN * width)[0]
     passes, widths = [], []
     if len(thin_label) == 0:
-        return f, passes, widths
+        return f, passes
     thin_v = np.nonzero(np.isin(label, thin_label))[0]  # the thin regions' own graph (small)
     e = np.searchsorted(thin_v, edges[np.isin(label[edges[:, 0]], thin_label)])
     mid = np.maximum(0.5 * (dist[thin_v[e[:, 0]]] + dist[thin_v[e[:, 1]]]), 0.05 * width)
@@ -669,7 +681,7 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
             gap, nearest = cKDTree(dense[:, :3]).query(vertices[thin_v[todo]])
             todo = todo[gap > 0.5 * dense[nearest, 3] + 0.25 * width]
     keep = ~np.isin(label[f[:, 0]], done)
-    return f[keep], passes, widths
+    return f[keep], passes
 
 
 def _longest_path(graph: sp.csr_matrix) -> np.ndarray:
@@ -716,6 +728,155 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= width:
             passes.append(v[chain])
     return passes
+
+
+def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
+    """Order of a piece's points without the places where it crosses itself (2-opt: reverse the
+    stretch between two crossing segments, so their ends are joined the other way round; the
+    path stays one piece over the same points and gets shorter, so this ends).
+
+    Contour arcs never cross each other; the links between them -- from ring to ring, into a
+    spliced child spiral -- can, where the cuts of neighbouring rings drift apart (Zhao et al.
+    2016 align them on one cut line) or once :func:`fit_beads` has moved the passes sideways.
+    Two segments cross when they come within ``0.01·width`` of each other at inner points, more
+    than 15° apart.
+    """
+    order = np.arange(len(piece))
+    for _ in range(rounds):
+        p = np.asarray(piece, np.float64)[order]
+        if len(p) < 4:
+            return order
+        a, b = p[:-1], p[1:]
+        length = np.linalg.norm(b - a, axis=1)
+        mid = 0.5 * (a + b)
+        near = cKDTree(mid).query_ball_point(mid, 0.5 * (length + length.max()) + 1e-9)
+        i = np.repeat(np.arange(len(a)), [len(n) for n in near])
+        j = np.concatenate([np.asarray(n, np.int64) for n in near])
+        keep = j > i + 1
+        i, j = i[keep], j[keep]
+        if len(i) == 0:
+            return order
+        u, v, w0 = b[i] - a[i], b[j] - a[j], a[i] - a[j]
+        uu, uv, vv = np.einsum("ij,ij->i", u, u), np.einsum("ij,ij->i", u, v), np.einsum("ij,ij->i", v, v)
+        uw, vw = np.einsum("ij,ij->i", u, w0), np.einsum("ij,ij->i", v, w0)
+        den = uu * vv - uv * uv
+        with np.errstate(all="ignore"):
+            s = np.clip((uv * vw - vv * uw) / den, 0, 1)
+            t = np.clip((uu * vw - uv * uw) / den, 0, 1)
+        gap = np.linalg.norm(w0 + s[:, None] * u - t[:, None] * v, axis=1)
+        sin = np.sqrt(np.maximum(den, 0)) / np.maximum(np.sqrt(uu * vv), 1e-300)
+        hit = (gap < 0.01 * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(np.radians(15)))
+        if not hit.any():
+            return order
+        k = int(np.argmax(hit))
+        order = np.r_[order[:i[k] + 1], order[i[k] + 1:j[k] + 1][::-1], order[j[k] + 1:]]
+    return order
+
+
+def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, how: str) -> np.ndarray:
+    """Running max or mean of ``values`` over ``±half`` entries, never across the pieces whose
+    entries run from ``start`` to ``stop`` (exclusive), one pair per entry."""
+    i = np.arange(len(values))
+    lo, hi = np.maximum(i - half, start), np.minimum(i + half + 1, stop)
+    if how in ("mean", "sum"):
+        c = np.r_[0.0, np.cumsum(values)]
+        return (c[hi] - c[lo]) / (hi - lo if how == "mean" else 1)
+    out = values.copy()
+    for k in range(1, half + 1):  # half is a handful of entries
+        out = np.maximum(out, np.where(i - k >= lo, values[np.maximum(i - k, 0)], -np.inf))
+        out = np.maximum(out, np.where(i + k < hi, values[np.minimum(i + k, len(values) - 1)], -np.inf))
+    return out
+
+
+def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float, seed: int = 0,
+              min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Centre every pass in the strip of surface nearest to it and make its bead as wide as that
+    strip (thesis §3.7: the gaps and overlaps that iso-distance spirals leave where their
+    contours meet or bunch up; the width is set through the extrusion, as the thesis compensates
+    the layer thickness through the feed).
+
+    The passes are re-sampled every ``_FIT_STEP`` widths; every surface sample (random, one per
+    ``_FIT_SAMPLE`` w², plus the boundary every ``_FIT_STEP`` widths) belongs to its nearest pass
+    point and lies on its left or right (by the layer normal × tangent). A point's extents to
+    either side -- the farthest sample it owns (a running max over ``±_FIT_HALF`` points, scaled by
+    (k+1)/k for k samples), then a running mean over ``±2·_FIT_HALF`` points so the bead changes
+    smoothly -- give the bead ``e_l + e_r`` and a shift ``(e_l - e_r)/2`` sideways, so the bead lies
+    over its strip: the beads tile the layer instead of overlapping by the spacing error. Beads
+    stay within ``_BEAD_RANGE`` widths and never narrower than ``min_bead`` (the local layer
+    thickness: a bead is at least as wide as it is high). A pass end also owns what lies ahead of it and is lengthened until its round end reaches
+    that far. Returns the fitted pieces and their per-vertex bead widths (mm).
+    """
+    fine = [resample(p, _FIT_STEP * width) for p in pieces]
+    fine = [p for p in fine if len(p) >= 2]
+    if not fine or surface.area <= 0:
+        return fine, [np.full(len(p), width) for p in fine]
+    x, xn = _surface_samples(surface, width, seed)
+    return _fit_strips(x, xn, fine, width, min_bead)
+
+
+def _surface_samples(surface: trimesh.Trimesh, width: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Random points of ``surface`` (one per ``_FIT_SAMPLE`` w²) and its boundary every
+    ``_FIT_STEP`` widths, with the normals of their triangles."""
+    count = int(np.clip(surface.area / (_FIT_SAMPLE * width**2), 200, 500_000))
+    x, face = trimesh.sample.sample_surface(surface, count, seed=seed)
+    edges = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
+    if len(edges):
+        a, b = surface.vertices[surface.edges[edges, 0]], surface.vertices[surface.edges[edges, 1]]
+        k = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / (_FIT_STEP * width)), 1).astype(np.int64)
+        e = np.repeat(np.arange(len(edges)), k)
+        u = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / k[e]
+        x = np.vstack([x, a[e] + u[:, None] * (b[e] - a[e])])
+        face = np.r_[face, surface.edges_face[edges][e]]
+    return x, surface.face_normals[face]
+
+
+def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: float,
+                min_bead: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`fit_beads` on passes sampled every ``_FIT_STEP`` widths and surface samples ``x``
+    (triangle normals ``xn``): the shifted passes and their beads."""
+    counts = np.array([len(p) for p in fine])
+    pts = np.vstack(fine)
+    n = len(pts)
+    stop = np.cumsum(counts)
+    start = stop - counts
+    owner = np.repeat(np.arange(len(fine)), counts)
+    lo, hi = start[owner], stop[owner]
+    i = np.arange(n)
+    tan = pts[np.minimum(i + 1, hi - 1)] - pts[np.maximum(i - 1, lo)]
+    tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
+    first, last = i == lo, i == hi - 1
+
+    _, j = cKDTree(pts).query(x)
+    normal = np.stack([np.bincount(j, weights=xn[:, c], minlength=n) for c in range(3)], axis=1)
+    normal = np.stack([_window(normal[:, c], lo, hi, 2 * _FIT_HALF, "mean") for c in range(3)], axis=1)
+    side = np.cross(normal, tan)
+    norm = np.linalg.norm(side, axis=1, keepdims=True)
+    side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-300), 0.0)
+
+    off = x - pts[j]
+    along = np.einsum("ij,ij->i", off, tan[j])
+    lateral = np.einsum("ij,ij->i", off, side[j])
+    left = lateral >= 0
+    extent = np.zeros((2, n))
+    np.maximum.at(extent[0], j[left], lateral[left])
+    np.maximum.at(extent[1], j[~left], -lateral[~left])
+    owned = np.stack([np.bincount(j[left], minlength=n), np.bincount(j[~left], minlength=n)]).astype(np.float64)
+    reach = np.zeros(n)  # how far ahead of a pass end it owns samples
+    np.maximum.at(reach, j, np.maximum(np.where(last[j], along, np.where(first[j], -along, 0.0)), 0.0))
+    # the farthest of k samples spread evenly over [0, e] lies at e·k/(k+1) on average
+    extent = np.stack([_window(e, lo, hi, _FIT_HALF, "max") * (1 + 1 / np.maximum(_window(c, lo, hi, _FIT_HALF, "sum"), 1))
+                       for e, c in zip(extent, owned)])
+    extent = np.stack([_window(e, lo, hi, 2 * _FIT_HALF, "mean") for e in extent])
+    floor = np.full(n, _BEAD_RANGE[0] * width)
+    if min_bead is not None:
+        floor = np.clip(min_bead(pts), floor, _BEAD_RANGE[1] * width)
+    bead = np.clip(extent.sum(axis=0), floor, _BEAD_RANGE[1] * width)
+    shift = np.clip(0.5 * (extent[0] - extent[1]), -0.5 * width, 0.5 * width)
+    pts = pts + shift[:, None] * side
+    grow = np.maximum(reach - 0.5 * bead, 0.0)
+    pts[first] -= grow[first, None] * tan[first]
+    pts[last] += grow[last, None] * tan[last]
+    return np.split(pts, stop[:-1]), np.split(bead, stop[:-1])
 
 
 def _order_pieces(pieces: list[np.ndarray], widths: list[np.ndarray],
@@ -822,6 +983,19 @@ class Toolpaths:
     seconds: dict[str, float]
 
 
+def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree]]) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point under each point on the platform top ``z = 0`` or the ``earlier`` layers'
+    triangles (Eq. 3.3) and the distance to it: the local layer thickness (unclamped)."""
+    q = np.asarray(points, np.float64).reshape(-1, 3)
+    closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
+    dist = np.abs(q[:, 2])
+    for tri_k, tree_k in earlier:
+        c_k, d_k, _ = ori.closest_points(q, tri_k, tree_k)
+        better = d_k < dist
+        closest[better], dist[better] = c_k[better], d_k[better]
+    return closest, dist
+
+
 def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings = ToolpathSettings(),
                    progress=None) -> Toolpaths:
     """Tool-paths, orientations and extrusion for working surfaces in print order (§3.5.1-3.5.2).
@@ -838,12 +1012,19 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     for index, mesh in enumerate(surfaces, start=1):
         t0 = perf_counter()
         surface = clean_surface(mesh)
-        paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps)
+        tri = surface.triangles
+        own_tree = cKDTree(tri.mean(axis=1)) if len(tri) else None
+        vertex_thickness = np.clip(_thickness(surface.vertices, earlier[-settings.window:])[1],
+                                   settings.min_thickness * w, settings.max_thickness * w)
+        vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
+
+        def min_bead(points: np.ndarray) -> np.ndarray:  # a bead is never narrower than it is high
+            return vertex_thickness[vertex_tree.query(points)[1]]
+
+        paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
         samples = [resample(np.c_[p, b], settings.step) for p, b in zip(paths.pieces, paths.widths)]
         samples = [s for s in samples if len(s) >= 2]
         t1 = perf_counter()
-        tri = surface.triangles
-        own_tree = cKDTree(tri.mean(axis=1)) if len(tri) else None
         row = {"layer": index, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
                "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
                "splices": paths.splices, "failed_splices": paths.failed_splices,
@@ -858,12 +1039,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             cursor = q[-1]
             q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer
             surface_normal = ori.surface_normals(surface, q, own_face)
-            closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])  # the platform top
-            dist = np.abs(q[:, 2])
-            for tri_k, tree_k in earlier[-settings.window:]:
-                c_k, d_k, _ = ori.closest_points(q, tri_k, tree_k)
-                better = d_k < dist
-                closest[better], dist[better] = c_k[better], d_k[better]
+            closest, dist = _thickness(q, earlier[-settings.window:])
             t = ori.accumulation_directions(q, closest, surface_normal)
             t = ori.limit_tilt(t, surface_normal, settings.max_tilt)
             t = ori.low_pass(t, pid, settings.max_angle)

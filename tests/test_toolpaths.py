@@ -12,7 +12,7 @@ from shapely.ops import unary_union
 
 from curvslice.flow import bead_area
 from curvslice.geodesic import boundary_distance
-from curvslice.toolpaths import contour_rings, extrusion_amounts, layer_paths, resample
+from curvslice.toolpaths import contour_rings, extrusion_amounts, fit_beads, layer_paths, resample, uncross
 from curvslice.verify.toolpaths import layer_cover
 
 
@@ -260,6 +260,50 @@ def test_thin_wall_is_one_ridge_pass_as_wide_as_the_wall(strip):
     assert coverage >= 0.95 and overlap <= 0.05
     if strip > 1:  # the same pass with beads of one width leaves both edges open
         assert layer_cover(mesh, s[:, :3], ids, width)[0] < coverage - 0.1
+
+
+def test_fit_beads_tiles_unevenly_spaced_passes():
+    """Straight passes across a 20 × 11.2 mm plate at spacings of 0.8 and 1.2 widths: with one bead
+    width they leave gaps and overlap; fitted, each bead spans exactly the strip between the
+    mid-lines to its neighbours (and the plate's edges), centred on it."""
+    width = 1.0
+    mesh = polygon_mesh(sg.box(0, 0, 20, 11.2), 0.3)
+    ys = 0.5 + np.cumsum(np.r_[0.0, np.tile([0.8, 1.2], 5)])  # 0.5 ... 10.5
+    passes = [np.c_[np.linspace(0.5, 19.5, 60), np.full(60, y), np.zeros(60)] for y in ys]
+    before = layer_cover(mesh, np.vstack(passes), np.repeat(np.arange(len(ys)), 60), width, seed=1)
+    assert before[0] < 0.93 and before[1] > 0.05  # the uneven spacing fails both measures as is
+    fitted, beads = fit_beads(mesh, passes, width)
+    bounds = np.r_[0.0, 0.5 * (ys[1:] + ys[:-1]), 11.2]
+    for k, (p, b) in enumerate(zip(fitted, beads)):
+        middle = (p[:, 0] > 3) & (p[:, 0] < 17)
+        strip = bounds[k + 1] - bounds[k]
+        assert np.median(b[middle]) == pytest.approx(strip, abs=0.05 * width)
+        assert np.median(p[middle, 1]) == pytest.approx(0.5 * (bounds[k] + bounds[k + 1]), abs=0.05 * width)
+    pos = np.vstack(fitted)
+    ids = np.repeat(np.arange(len(fitted)), [len(p) for p in fitted])
+    bead = np.concatenate(beads)
+    coverage, overlap = layer_cover(mesh, pos, ids, width, seed=1, bead=np.r_[bead[:1], 0.5 * (bead[1:] + bead[:-1])])
+    assert coverage >= 0.97 and overlap <= 0.02
+    # a bead is never narrower than the floor it is given (the layer thickness)
+    _, floored = fit_beads(mesh, passes, width, min_bead=lambda q: np.full(len(q), 0.9 * width))
+    assert min(b.min() for b in floored) >= 0.9 * width - 1e-12
+
+
+def test_uncross_joins_crossing_links_the_other_way():
+    """A path over two parallel passes whose links cross (an X): 2-opt leaves the same points in
+    an order without the crossing, and shorter."""
+    width = 1.0
+    x = np.linspace(0.0, 10.0, 21)
+    lower = np.c_[x, np.zeros_like(x), np.zeros_like(x)]
+    upper = np.c_[x, np.ones_like(x), np.zeros_like(x)]
+    path = np.vstack([lower[:10], upper[10:], upper[:10][::-1], lower[10:]])  # links cross at x ≈ 4.75
+    assert _self_intersections(path) > 0
+    order = uncross(path, width)
+    fixed = path[order]
+    assert sorted(order.tolist()) == list(range(len(path)))
+    assert _self_intersections(fixed) == 0
+    length = lambda p: np.linalg.norm(np.diff(p, axis=0), axis=1).sum()
+    assert length(fixed) < length(path)
 
 
 def test_verifier_recovers_bead_width_from_extrusion():
