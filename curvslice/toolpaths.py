@@ -65,11 +65,13 @@ _BRANCHES = 3
 #: Bead widths the extruder lays by flow alone, in path widths (narrowest, widest): see :func:`fit_beads`.
 _BEAD_RANGE = (_BEAD_MIN, 2.0 * _THIN)
 #: :func:`fit_beads`: spacing of the fitted pass points and of the boundary samples (widths), surface
-#: area per random sample (widths²), half-window of the running max in pass points (the running
-#: mean and the normal use twice as many).
+#: area per lattice sample (widths²), half-window of the running max / min / mean in pass points
+#: (the normal uses twice as many).
 _FIT_STEP = 0.1
 _FIT_SAMPLE = 0.02
 _FIT_HALF = 3
+#: Added to each side of a fitted strip (widths): the lattice samples still fall short of its edge.
+_FIT_MARGIN = 0.015
 
 
 @dataclass
@@ -605,11 +607,13 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
         cursor = piece[-1]
     out.pieces.extend(builder.extra_pieces + lines)
     out.regions += len(lines) + len(thin)
-    fill = gap_passes(v, f, out.pieces, width) if fill_gaps and len(f) else []
-    out.pieces.extend(fill)
+    passes = out.pieces + thin
+    pieces, widths = fit_beads(surface, passes, width, min_bead=min_bead)
+    fill = gap_passes(v, f, pieces, width, widths) if fill_gaps and len(f) else []
+    if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
+        pieces, widths = fit_beads(surface, passes + fill, width, min_bead=min_bead)
     out.gap_passes = len(fill)
     out.splices, out.failed_splices = builder.splices, builder.failed
-    pieces, widths = fit_beads(surface, out.pieces + thin, width, min_bead=min_bead)
     orders = [uncross(p, width) for p in pieces]
     pieces, widths = [p[o] for p, o in zip(pieces, orders)], [b[o] for b, o in zip(widths, orders)]
     out.pieces, out.widths = _order_pieces(pieces, widths, start)
@@ -698,11 +702,12 @@ def _longest_path(graph: sp.csr_matrix) -> np.ndarray:
 
 
 def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray], width: float,
-               min_vertices: int = 4) -> list[np.ndarray]:
+               widths: list[np.ndarray] | None = None, min_vertices: int = 4) -> list[np.ndarray]:
     """Extra passes through what the spirals leave open: narrow strips (thinner than a bead, where
     no contour exists) and the medial-axis gaps between contour families (thesis §3.7).
 
-    Vertices farther than ``_GAP`` widths from every path form connected patches; each patch at
+    Vertices more than ``_GAP - 0.5`` widths beyond the edge of every bead (``widths``: each piece
+    vertex's bead, default ``width``) form connected patches; each patch at
     least a width long gets one pass along its longest shortest path (two Dijkstra sweeps on its
     mesh edges), which runs down the middle of a strip.
     """
@@ -710,8 +715,10 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     if not pieces:
         open_v = np.ones(len(v), bool)
     else:
-        dense = np.vstack([resample(p, 0.1 * width) if len(p) > 1 else p for p in pieces])
-        open_v = cKDTree(dense).query(v, distance_upper_bound=_GAP * width)[0] > _GAP * width
+        widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
+        dense = np.vstack([resample(np.c_[p, b], 0.1 * width) for p, b in zip(pieces, widths)])
+        gap, nearest = cKDTree(dense[:, :3]).query(v)
+        open_v = gap > 0.5 * dense[nearest, 3] + (_GAP - 0.5) * width
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
     edges = np.unique(edges[open_v[edges].all(axis=1)], axis=0)
     if len(edges) == 0:
@@ -749,9 +756,14 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
         a, b = p[:-1], p[1:]
         length = np.linalg.norm(b - a, axis=1)
         mid = 0.5 * (a + b)
-        near = cKDTree(mid).query_ball_point(mid, 0.5 * (length + length.max()) + 1e-9)
-        i = np.repeat(np.arange(len(a)), [len(n) for n in near])
-        j = np.concatenate([np.asarray(n, np.int64) for n in near])
+        tree = cKDTree(mid)
+        typical = float(np.percentile(length, 99)) + 1e-9
+        pairs = [tree.query_pairs(typical, output_type="ndarray")]
+        for k in np.nonzero(length > typical)[0]:  # the few long links, against everything near
+            near = np.asarray(tree.query_ball_point(mid[k], 0.5 * (length[k] + length.max()) + 1e-9), np.int64)
+            pairs.append(np.c_[np.full(len(near), k), near])
+        pairs = np.vstack(pairs)
+        i, j = pairs.min(axis=1), pairs.max(axis=1)
         keep = j > i + 1
         i, j = i[keep], j[keep]
         if len(i) == 0:
@@ -774,60 +786,82 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
 
 
 def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, how: str) -> np.ndarray:
-    """Running max or mean of ``values`` over ``±half`` entries, never across the pieces whose
-    entries run from ``start`` to ``stop`` (exclusive), one pair per entry."""
+    """Running max, min, mean or sum of ``values`` over ``±half`` entries, never across the pieces
+    whose entries run from ``start`` to ``stop`` (exclusive), one pair per entry."""
     i = np.arange(len(values))
     lo, hi = np.maximum(i - half, start), np.minimum(i + half + 1, stop)
     if how in ("mean", "sum"):
         c = np.r_[0.0, np.cumsum(values)]
         return (c[hi] - c[lo]) / (hi - lo if how == "mean" else 1)
+    pick, none = (np.maximum, -np.inf) if how == "max" else (np.minimum, np.inf)
     out = values.copy()
     for k in range(1, half + 1):  # half is a handful of entries
-        out = np.maximum(out, np.where(i - k >= lo, values[np.maximum(i - k, 0)], -np.inf))
-        out = np.maximum(out, np.where(i + k < hi, values[np.minimum(i + k, len(values) - 1)], -np.inf))
+        out = pick(out, np.where(i - k >= lo, values[np.maximum(i - k, 0)], none))
+        out = pick(out, np.where(i + k < hi, values[np.minimum(i + k, len(values) - 1)], none))
     return out
 
 
-def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float, seed: int = 0,
+def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
               min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Centre every pass in the strip of surface nearest to it and make its bead as wide as that
     strip (thesis §3.7: the gaps and overlaps that iso-distance spirals leave where their
     contours meet or bunch up; the width is set through the extrusion, as the thesis compensates
     the layer thickness through the feed).
 
-    The passes are re-sampled every ``_FIT_STEP`` widths; every surface sample (random, one per
+    The passes are re-sampled every ``_FIT_STEP`` widths; every surface sample (a lattice, one per
     ``_FIT_SAMPLE`` w², plus the boundary every ``_FIT_STEP`` widths) belongs to its nearest pass
-    point and lies on its left or right (by the layer normal × tangent). A point's extents to
-    either side -- the farthest sample it owns (a running max over ``±_FIT_HALF`` points, scaled by
-    (k+1)/k for k samples), then a running mean over ``±2·_FIT_HALF`` points so the bead changes
-    smoothly -- give the bead ``e_l + e_r`` and a shift ``(e_l - e_r)/2`` sideways, so the bead lies
-    over its strip: the beads tile the layer instead of overlapping by the spacing error. Beads
-    stay within ``_BEAD_RANGE`` widths and never narrower than ``min_bead`` (the local layer
-    thickness: a bead is at least as wide as it is high). A pass end also owns what lies ahead of it and is lengthened until its round end reaches
-    that far. Returns the fitted pieces and their per-vertex bead widths (mm).
+    point and lies on its left or right (by the layer normal × tangent), at its 3D distance off
+    the pass. A point's extent to either side -- the farthest sample it owns, closed (running max
+    then min over ``±_FIT_HALF`` points), scaled by (k+1)/k for k samples, averaged over
+    ``±_FIT_HALF`` points so the bead changes smoothly, plus ``_FIT_MARGIN`` -- gives the bead
+    ``e_l + e_r`` and a shift ``(e_l - e_r)/2`` sideways, so the bead lies over its strip: the beads
+    tile the layer instead of overlapping by the spacing error. Beads stay within
+    ``_BEAD_RANGE`` widths and never narrower than ``min_bead`` (the local layer thickness: a bead
+    is at least as wide as it is high). A pass end also owns what lies ahead of it and is
+    lengthened until its round end reaches that far. Returns the fitted pieces and their
+    per-vertex bead widths (mm).
     """
     fine = [resample(p, _FIT_STEP * width) for p in pieces]
     fine = [p for p in fine if len(p) >= 2]
     if not fine or surface.area <= 0:
         return fine, [np.full(len(p), width) for p in fine]
-    x, xn = _surface_samples(surface, width, seed)
+    x, xn = _surface_samples(surface, width)
     return _fit_strips(x, xn, fine, width, min_bead)
 
 
-def _surface_samples(surface: trimesh.Trimesh, width: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    """Random points of ``surface`` (one per ``_FIT_SAMPLE`` w²) and its boundary every
-    ``_FIT_STEP`` widths, with the normals of their triangles."""
-    count = int(np.clip(surface.area / (_FIT_SAMPLE * width**2), 200, 500_000))
-    x, face = trimesh.sample.sample_surface(surface, count, seed=seed)
+def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Largest of ``values`` per ``index`` in ``range(n)``, at least 0 (``np.maximum.at``, sorted)."""
+    out = np.zeros(n)
+    if len(index):
+        order = np.argsort(index, kind="stable")
+        idx = index[order]
+        starts = np.r_[0, np.nonzero(np.diff(idx))[0] + 1]
+        out[idx[starts]] = np.maximum(np.maximum.reduceat(values[order], starts), 0.0)
+    return out
+
+
+def _surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """Points of ``surface`` on a barycentric lattice of each triangle, about one per
+    ``_FIT_SAMPLE`` w² (even, unlike random samples: no voids to under-estimate a strip by), and
+    on its boundary every ``_FIT_STEP`` widths, with the normals of their triangles."""
+    tri = surface.triangles
+    order = np.maximum(np.ceil(np.sqrt(2.0 * surface.area_faces / (_FIT_SAMPLE * width**2))), 1).astype(np.int64)
+    points, normals = [], []
+    for m in np.unique(order):
+        faces = np.nonzero(order == m)[0]
+        i, j = np.triu_indices(m + 1)
+        bary = np.c_[m - j, j - i, i] / m  # (m+1)(m+2)/2 lattice points, the corners and edges included
+        points.append(np.einsum("pk,fkd->fpd", bary, tri[faces]).reshape(-1, 3))
+        normals.append(np.repeat(surface.face_normals[faces], len(bary), axis=0))
     edges = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
     if len(edges):
         a, b = surface.vertices[surface.edges[edges, 0]], surface.vertices[surface.edges[edges, 1]]
         k = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / (_FIT_STEP * width)), 1).astype(np.int64)
         e = np.repeat(np.arange(len(edges)), k)
         u = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / k[e]
-        x = np.vstack([x, a[e] + u[:, None] * (b[e] - a[e])])
-        face = np.r_[face, surface.edges_face[edges][e]]
-    return x, surface.face_normals[face]
+        points.append(a[e] + u[:, None] * (b[e] - a[e]))
+        normals.append(surface.face_normals[surface.edges_face[edges][e]])
+    return np.vstack(points), np.vstack(normals)
 
 
 def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: float,
@@ -855,18 +889,20 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
 
     off = x - pts[j]
     along = np.einsum("ij,ij->i", off, tan[j])
-    lateral = np.einsum("ij,ij->i", off, side[j])
-    left = lateral >= 0
-    extent = np.zeros((2, n))
-    np.maximum.at(extent[0], j[left], lateral[left])
-    np.maximum.at(extent[1], j[~left], -lateral[~left])
+    # distance off the pass in 3D (the chord across a curved strip, as the bead must reach),
+    # on the side the layer's tangent plane puts it
+    left = np.einsum("ij,ij->i", off, side[j]) >= 0
+    lateral = np.linalg.norm(off - along[:, None] * tan[j], axis=1) * np.where(left, 1.0, -1.0)
+    extent = np.stack([_group_max(j[left], lateral[left], n), _group_max(j[~left], -lateral[~left], n)])
     owned = np.stack([np.bincount(j[left], minlength=n), np.bincount(j[~left], minlength=n)]).astype(np.float64)
-    reach = np.zeros(n)  # how far ahead of a pass end it owns samples
-    np.maximum.at(reach, j, np.maximum(np.where(last[j], along, np.where(first[j], -along, 0.0)), 0.0))
+    reach = _group_max(j, np.where(last[j], along, np.where(first[j], -along, 0.0)), n)  # ahead of an end
     # the farthest of k samples spread evenly over [0, e] lies at e·k/(k+1) on average
-    extent = np.stack([_window(e, lo, hi, _FIT_HALF, "max") * (1 + 1 / np.maximum(_window(c, lo, hi, _FIT_HALF, "sum"), 1))
-                       for e, c in zip(extent, owned)])
-    extent = np.stack([_window(e, lo, hi, 2 * _FIT_HALF, "mean") for e in extent])
+    # closing (running max, then min): fills the dips where no sample happened to lie near the
+    # strip's edge without spreading a wide stretch into a narrow one; the farthest of k samples
+    # spread evenly over [0, e] lies at e·k/(k+1); a running mean smooths the bead
+    closed = [_window(_window(e, lo, hi, _FIT_HALF, "max"), lo, hi, _FIT_HALF, "min") for e in extent]
+    extent = np.stack([_window(e * (1 + 1 / np.maximum(_window(c, lo, hi, _FIT_HALF, "sum"), 1)), lo, hi, _FIT_HALF, "mean")
+                       for e, c in zip(closed, owned)]) + _FIT_MARGIN * width
     floor = np.full(n, _BEAD_RANGE[0] * width)
     if min_bead is not None:
         floor = np.clip(min_bead(pts), floor, _BEAD_RANGE[1] * width)
@@ -913,13 +949,12 @@ def resample(polyline: np.ndarray, step: float) -> np.ndarray:
     turn = np.arccos(np.clip(np.einsum("ij,ij->i", u[:-1], u[1:]), -1, 1))
     keep = np.r_[0, np.nonzero(turn > _CORNER)[0] + 1, len(p) - 1]
     cum = np.r_[0.0, np.cumsum(np.linalg.norm(d, axis=1))]
-    samples = []
-    for a, b in zip(keep[:-1], keep[1:]):
-        n = max(int(np.ceil((cum[b] - cum[a]) / step - 1e-9)), 1)
-        s = np.linspace(cum[a], cum[b], n + 1)[:-1]
-        samples.append(np.column_stack([np.interp(s, cum[a:b + 1], p[a:b + 1, i]) for i in range(p.shape[1])]))
-    samples.append(p[-1:])
-    return np.vstack(samples)
+    # every run between kept corners in n equal steps (the corners themselves are knots of cum)
+    start, span = cum[keep[:-1]], cum[keep[1:]] - cum[keep[:-1]]
+    n = np.maximum(np.ceil(span / step - 1e-9), 1).astype(np.int64)
+    run = np.repeat(np.arange(len(n)), n)
+    s = np.r_[start[run] + span[run] * (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / n[run], cum[-1]]
+    return np.column_stack([np.interp(s, cum, p[:, i]) for i in range(p.shape[1])])
 
 
 def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.ndarray, width,
@@ -983,14 +1018,16 @@ class Toolpaths:
     seconds: dict[str, float]
 
 
-def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree]]) -> tuple[np.ndarray, np.ndarray]:
+def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree]],
+               candidates: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Closest point under each point on the platform top ``z = 0`` or the ``earlier`` layers'
-    triangles (Eq. 3.3) and the distance to it: the local layer thickness (unclamped)."""
+    triangles (Eq. 3.3; ``candidates`` nearest triangle centroids tried on each) and the distance
+    to it: the local layer thickness (unclamped)."""
     q = np.asarray(points, np.float64).reshape(-1, 3)
     closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
     dist = np.abs(q[:, 2])
     for tri_k, tree_k in earlier:
-        c_k, d_k, _ = ori.closest_points(q, tri_k, tree_k)
+        c_k, d_k, _ = ori.closest_points(q, tri_k, tree_k, candidates)
         better = d_k < dist
         closest[better], dist[better] = c_k[better], d_k[better]
     return closest, dist
@@ -1014,7 +1051,8 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         surface = clean_surface(mesh)
         tri = surface.triangles
         own_tree = cKDTree(tri.mean(axis=1)) if len(tri) else None
-        vertex_thickness = np.clip(_thickness(surface.vertices, earlier[-settings.window:])[1],
+        # (a floor: fewer candidate triangles than for the samples' own thickness below)
+        vertex_thickness = np.clip(_thickness(surface.vertices, earlier[-settings.window:], 3)[1],
                                    settings.min_thickness * w, settings.max_thickness * w)
         vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
 
