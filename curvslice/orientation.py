@@ -28,7 +28,7 @@ def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | No
     tri = np.asarray(triangles, np.float64).reshape(-1, 3, 3)
     tree = tree if tree is not None else cKDTree(tri.mean(axis=1))
     k = min(candidates, len(tri))
-    _, idx = tree.query(pts, k=k)
+    _, idx = tree.query(pts, k=k, workers=-1)
     idx = idx.reshape(len(pts), k)
     cand = _closest_on_triangles(tri[idx.ravel()], np.repeat(pts, k, axis=0)).reshape(len(pts), k, 3)
     dist = np.linalg.norm(cand - pts[:, None, :], axis=2)

@@ -70,6 +70,11 @@ _BEAD_RANGE = (_BEAD_MIN, 2.0 * _THIN)
 _FIT_STEP = 0.1
 _FIT_SAMPLE = 0.02
 _FIT_HALF = 3
+#: Pieces shorter than this many widths are dropped when the other beads already cover them.
+_REDUNDANT = 4.0
+#: Re-sampling of the fitted passes: a bead width change counts this many times its size as path
+#: length, so a cap or a narrowing is not averaged away over a 1 mm step (:func:`resample`).
+_WIDTH_WEIGHT = 5.0
 #: Added to each side of a fitted strip (widths): the lattice samples still fall short of its edge.
 _FIT_MARGIN = 0.015
 
@@ -607,11 +612,15 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
         cursor = piece[-1]
     out.pieces.extend(builder.extra_pieces + lines)
     out.regions += len(lines) + len(thin)
-    passes = out.pieces + thin
+    passes = [p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
     pieces, widths = fit_beads(surface, passes, width, min_bead=min_bead)
     fill = gap_passes(v, f, pieces, width, widths) if fill_gaps and len(f) else []
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
-        pieces, widths = fit_beads(surface, passes + fill, width, min_bead=min_bead)
+        passes += fill
+        pieces, widths = fit_beads(surface, passes, width, min_bead=min_bead)
+    needed = needed_pieces(pieces, widths, width)
+    if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
+        pieces, widths = fit_beads(surface, [passes[i] for i in needed], width, min_bead=min_bead)
     out.gap_passes = len(fill)
     out.splices, out.failed_splices = builder.splices, builder.failed
     orders = [uncross(p, width) for p in pieces]
@@ -717,7 +726,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     else:
         widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
         dense = np.vstack([resample(np.c_[p, b], 0.1 * width) for p, b in zip(pieces, widths)])
-        gap, nearest = cKDTree(dense[:, :3]).query(v)
+        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
         open_v = gap > 0.5 * dense[nearest, 3] + (_GAP - 0.5) * width
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
     edges = np.unique(edges[open_v[edges].all(axis=1)], axis=0)
@@ -801,6 +810,24 @@ def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, 
     return out
 
 
+def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> list[int]:
+    """Indices of the pieces to keep: a piece shorter than ``_REDUNDANT`` widths whose points lie
+    (75 %) inside the other kept pieces' beads adds nothing but overlap -- typical of slivers of
+    tiny layers, where every bead is at least as wide as the layer is thick. Shortest first."""
+    keep = list(range(len(pieces)))
+    length = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pieces]
+    for k in sorted(keep, key=lambda i: length[i]):
+        if length[k] >= _REDUNDANT * width or len(keep) == 1:
+            break
+        others = [i for i in keep if i != k]
+        pts = np.vstack([pieces[i] for i in others])
+        half = 0.5 * np.concatenate([widths[i] for i in others])
+        gap, nearest = cKDTree(pts).query(pieces[k])
+        if np.mean(gap <= half[nearest]) >= 0.5:
+            keep = others
+    return keep
+
+
 def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
               min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Centre every pass in the strip of surface nearest to it and make its bead as wide as that
@@ -880,7 +907,7 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
     first, last = i == lo, i == hi - 1
 
-    _, j = cKDTree(pts).query(x)
+    _, j = cKDTree(pts).query(x, workers=-1)  # the largest query of the stage: both cores
     normal = np.stack([np.bincount(j, weights=xn[:, c], minlength=n) for c in range(3)], axis=1)
     normal = np.stack([_window(normal[:, c], lo, hi, 2 * _FIT_HALF, "mean") for c in range(3)], axis=1)
     side = np.cross(normal, tan)
@@ -901,8 +928,10 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     # strip's edge without spreading a wide stretch into a narrow one; the farthest of k samples
     # spread evenly over [0, e] lies at e·k/(k+1); a running mean smooths the bead
     closed = [_window(_window(e, lo, hi, _FIT_HALF, "max"), lo, hi, _FIT_HALF, "min") for e in extent]
-    extent = np.stack([_window(e * (1 + 1 / np.maximum(_window(c, lo, hi, _FIT_HALF, "sum"), 1)), lo, hi, _FIT_HALF, "mean")
-                       for e, c in zip(closed, owned)]) + _FIT_MARGIN * width
+    ends = first | last  # a pass end keeps the extent of all it owns (its cap, not to be eroded)
+    extent = np.stack([np.where(ends, np.maximum(m, e), m) for m, e in zip(
+        [_window(e * (1 + 1 / np.maximum(_window(c, lo, hi, _FIT_HALF, "sum"), 1)), lo, hi, _FIT_HALF, "mean")
+         for e, c in zip(closed, owned)], extent)]) + _FIT_MARGIN * width
     floor = np.full(n, _BEAD_RANGE[0] * width)
     if min_bead is not None:
         floor = np.clip(min_bead(pts), floor, _BEAD_RANGE[1] * width)
@@ -935,10 +964,13 @@ def _order_pieces(pieces: list[np.ndarray], widths: list[np.ndarray],
     return ordered, ordered_w
 
 
-def resample(polyline: np.ndarray, step: float) -> np.ndarray:
+def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0) -> np.ndarray:
     """Uniform re-sampling at spacing ≤ ``step`` (thesis §3.5.2: 1 mm) keeping sharp corners.
 
-    Columns after the first three (x, y, z) are per-vertex values interpolated along the way."""
+    Columns after the first three (x, y, z) are per-vertex values interpolated along the way.
+    With ``value_weight`` > 0 the spacing is uniform in ``√(ds² + (value_weight·dv)²)`` instead of
+    the arclength ``ds``, so where a value (a bead width) changes, samples come closer and its
+    profile survives the linear interpolation between them."""
     p = np.asarray(polyline, np.float64)
     seg = np.linalg.norm(np.diff(p[:, :3], axis=0), axis=1)
     p = p[np.r_[True, seg > 1e-9]]
@@ -948,7 +980,7 @@ def resample(polyline: np.ndarray, step: float) -> np.ndarray:
     u = d / np.linalg.norm(d, axis=1, keepdims=True)
     turn = np.arccos(np.clip(np.einsum("ij,ij->i", u[:-1], u[1:]), -1, 1))
     keep = np.r_[0, np.nonzero(turn > _CORNER)[0] + 1, len(p) - 1]
-    cum = np.r_[0.0, np.cumsum(np.linalg.norm(d, axis=1))]
+    cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.c_[d, value_weight * np.diff(p[:, 3:], axis=0)], axis=1))]
     # every run between kept corners in n equal steps (the corners themselves are knots of cum)
     start, span = cum[keep[:-1]], cum[keep[1:]] - cum[keep[:-1]]
     n = np.maximum(np.ceil(span / step - 1e-9), 1).astype(np.int64)
@@ -1060,7 +1092,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             return vertex_thickness[vertex_tree.query(points)[1]]
 
         paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
-        samples = [resample(np.c_[p, b], settings.step) for p, b in zip(paths.pieces, paths.widths)]
+        samples = [resample(np.c_[p, b], settings.step, _WIDTH_WEIGHT) for p, b in zip(paths.pieces, paths.widths)]
         samples = [s for s in samples if len(s) >= 2]
         t1 = perf_counter()
         row = {"layer": index, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
