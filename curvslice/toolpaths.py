@@ -76,7 +76,7 @@ _REDUNDANT = 4.0
 #: length, so a cap or a narrowing is not averaged away over a 1 mm step (:func:`resample`).
 _WIDTH_WEIGHT = 5.0
 #: Added to each side of a fitted strip (widths): the lattice samples still fall short of its edge.
-_FIT_MARGIN = 0.015
+_FIT_MARGIN = 0.01
 
 
 @dataclass
@@ -613,14 +613,15 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     out.pieces.extend(builder.extra_pieces + lines)
     out.regions += len(lines) + len(thin)
     passes = [p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
-    pieces, widths = fit_beads(surface, passes, width, min_bead=min_bead)
+    samples = surface_samples(surface, width)
+    pieces, widths = fit_beads(surface, passes, width, min_bead, samples)
     fill = gap_passes(v, f, pieces, width, widths) if fill_gaps and len(f) else []
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
         passes += fill
-        pieces, widths = fit_beads(surface, passes, width, min_bead=min_bead)
+        pieces, widths = fit_beads(surface, passes, width, min_bead, samples)
     needed = needed_pieces(pieces, widths, width)
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
-        pieces, widths = fit_beads(surface, [passes[i] for i in needed], width, min_bead=min_bead)
+        pieces, widths = fit_beads(surface, [passes[i] for i in needed], width, min_bead, samples)
     out.gap_passes = len(fill)
     out.splices, out.failed_splices = builder.splices, builder.failed
     orders = [uncross(p, width) for p in pieces]
@@ -811,25 +812,38 @@ def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, 
 
 
 def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> list[int]:
-    """Indices of the pieces to keep: a piece shorter than ``_REDUNDANT`` widths whose points lie
-    (75 %) inside the other kept pieces' beads adds nothing but overlap -- typical of slivers of
+    """Indices of the pieces to keep: a piece shorter than ``_REDUNDANT`` widths with half its
+    points inside the other kept pieces' beads adds nothing but overlap -- typical of slivers of
     tiny layers, where every bead is at least as wide as the layer is thick. Shortest first."""
     keep = list(range(len(pieces)))
     length = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pieces]
-    for k in sorted(keep, key=lambda i: length[i]):
-        if length[k] >= _REDUNDANT * width or len(keep) == 1:
+    short = [k for k in sorted(keep, key=lambda i: length[i]) if length[k] < _REDUNDANT * width]
+    if not short or len(pieces) < 2:
+        return keep
+    pts = np.vstack(pieces)
+    label = np.repeat(np.arange(len(pieces)), [len(p) for p in pieces])
+    half = 0.5 * np.concatenate(widths)
+    tree = cKDTree(pts)
+    dropped = np.zeros(len(pieces), bool)
+    for k in short:
+        if len(keep) == 1:
             break
-        others = [i for i in keep if i != k]
-        pts = np.vstack([pieces[i] for i in others])
-        half = 0.5 * np.concatenate([widths[i] for i in others])
-        gap, nearest = cKDTree(pts).query(pieces[k])
-        if np.mean(gap <= half[nearest]) >= 0.5:
-            keep = others
+        near = min(16, len(pts))
+        gap, idx = tree.query(pieces[k], k=near)
+        gap, idx = gap.reshape(len(pieces[k]), near), idx.reshape(len(pieces[k]), near)
+        other = (label[idx] != k) & ~dropped[label[idx]]  # the nearest points of the kept others
+        first = np.argmax(other, axis=1)
+        rows = np.arange(len(idx))
+        inside = other[rows, first] & (gap[rows, first] <= half[idx[rows, first]])
+        if np.mean(inside) >= 0.5:
+            dropped[k] = True
+            keep.remove(k)
     return keep
 
 
 def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
-              min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+              min_bead: Callable[[np.ndarray], np.ndarray] | None = None,
+              samples: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Centre every pass in the strip of surface nearest to it and make its bead as wide as that
     strip (thesis §3.7: the gaps and overlaps that iso-distance spirals leave where their
     contours meet or bunch up; the width is set through the extrusion, as the thesis compensates
@@ -846,13 +860,14 @@ def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
     ``_BEAD_RANGE`` widths and never narrower than ``min_bead`` (the local layer thickness: a bead
     is at least as wide as it is high). A pass end also owns what lies ahead of it and is
     lengthened until its round end reaches that far. Returns the fitted pieces and their
-    per-vertex bead widths (mm).
+    per-vertex bead widths (mm). ``samples`` (points, normals) of :func:`surface_samples` may be
+    passed in when several fits share one surface.
     """
     fine = [resample(p, _FIT_STEP * width) for p in pieces]
     fine = [p for p in fine if len(p) >= 2]
     if not fine or surface.area <= 0:
         return fine, [np.full(len(p), width) for p in fine]
-    x, xn = _surface_samples(surface, width)
+    x, xn = samples if samples is not None else surface_samples(surface, width)
     return _fit_strips(x, xn, fine, width, min_bead)
 
 
@@ -867,7 +882,7 @@ def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def _surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray, np.ndarray]:
+def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray, np.ndarray]:
     """Points of ``surface`` on a barycentric lattice of each triangle, about one per
     ``_FIT_SAMPLE`` w² (even, unlike random samples: no voids to under-estimate a strip by), and
     on its boundary every ``_FIT_STEP`` widths, with the normals of their triangles."""
