@@ -13,9 +13,13 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9):
    ring); where the contour tree branches, each child spiral is spliced into the ring that
    hosts it through a gap, so a connected region is one continuous piece unless a splice has no
    room (then the child becomes its own piece, counted as a jump);
-4. uniform re-sampling at ``step`` (1 mm in the thesis, §3.5.2), keeping sharp corners;
-5. extrusion per segment from length × width × local layer thickness (volume conservation,
-   :func:`curvslice.flow.filament_length`).
+4. every pass centred in the strip of surface nearest to it, with a bead as wide as that strip
+   (:func:`fit_beads`: the passes tile the layer despite uneven spacing), gap passes where the
+   widest beads still leave surface open, redundant slivers dropped, self-crossings removed;
+5. re-sampling at ``step`` (1 mm in the thesis, §3.5.2), keeping sharp corners and the bead
+   width profile;
+6. extrusion per segment from length × bead width × local layer thickness (volume
+   conservation, :func:`curvslice.flow.filament_length`).
 """
 
 from __future__ import annotations
