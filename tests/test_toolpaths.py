@@ -12,7 +12,7 @@ from shapely.ops import unary_union
 
 from curvslice.flow import bead_area
 from curvslice.geodesic import boundary_distance
-from curvslice.toolpaths import contour_rings, extrusion_amounts, fit_beads, layer_paths, resample, uncross
+from curvslice.toolpaths import contour_rings, extrusion_amounts, fit_beads, layer_paths, needed_pieces, resample, uncross
 from curvslice.verify.toolpaths import layer_cover
 
 
@@ -287,6 +287,37 @@ def test_fit_beads_tiles_unevenly_spaced_passes():
     # a bead is never narrower than the floor it is given (the layer thickness)
     _, floored = fit_beads(mesh, passes, width, min_bead=lambda q: np.full(len(q), 0.9 * width))
     assert min(b.min() for b in floored) >= 0.9 * width - 1e-12
+
+
+def test_resample_with_value_weight_keeps_the_bead_profile():
+    """A 10 mm pass whose bead widens from 1.0 to 1.5 over its last 0.5 mm: at a 1 mm step the
+    plain re-sampling interpolates the cap away; weighting the width change keeps it."""
+    x = np.linspace(0.0, 10.0, 101)
+    bead = np.where(x > 9.5, 1.0 + (x - 9.5), 1.0)
+    line = np.c_[x, np.zeros_like(x), np.zeros_like(x), bead]
+    plain = resample(line, 1.0)
+    weighted = resample(line, 1.0, value_weight=5.0)
+    for r in (plain, weighted):
+        assert np.allclose(r[:, 1:3], 0.0) and r[0, 0] == 0.0 and r[-1, 0] == 10.0
+        assert np.abs(np.interp(r[:, 0], x, bead) - r[:, 3]).max() < 1e-12  # values stay on the profile
+    true_mean = np.trapezoid(bead, x) / 10.0
+
+    def segment_mean(r):  # what the extrusion lays: each segment's mean width over its length
+        seg = np.diff(r[:, 0])
+        return np.sum(seg * 0.5 * (r[1:, 3] + r[:-1, 3])) / seg.sum()
+    assert abs(segment_mean(weighted) - true_mean) < abs(segment_mean(plain) - true_mean)
+    assert np.sum(weighted[:, 0] > 9.4) >= 3  # samples gather where the width changes
+
+
+def test_needed_pieces_drops_a_sliver_inside_another_bead():
+    width = 1.0
+    long_pass = np.c_[np.linspace(0, 20, 201), np.zeros(201), np.zeros(201)]
+    inside = np.c_[np.linspace(5, 7, 21), np.full(21, 0.2), np.zeros(21)]  # within the long bead
+    apart = np.c_[np.linspace(5, 7, 21), np.full(21, 2.0), np.zeros(21)]  # its own strip
+    pieces = [long_pass, inside, apart]
+    widths = [np.full(len(p), width) for p in pieces]
+    assert needed_pieces(pieces, widths, width) == [0, 2]
+    assert needed_pieces([long_pass, apart], widths[::2], width) == [0, 1]
 
 
 def test_uncross_joins_crossing_links_the_other_way():
