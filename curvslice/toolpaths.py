@@ -1073,14 +1073,21 @@ def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree]],
                candidates: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Closest point under each point on the platform top ``z = 0`` or the ``earlier`` layers'
     triangles (Eq. 3.3; ``candidates`` nearest triangle centroids tried on each) and the distance
-    to it: the local layer thickness (unclamped)."""
+    to it: the local layer thickness (unclamped). Layers are searched newest first, and a layer
+    only for the points it may bring closer: no triangle is nearer than its nearest centroid
+    less the layer's largest centroid-to-corner reach."""
     q = np.asarray(points, np.float64).reshape(-1, 3)
     closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
     dist = np.abs(q[:, 2])
-    for tri_k, tree_k in earlier:
-        c_k, d_k, _ = ori.closest_points(q, tri_k, tree_k, candidates)
-        better = d_k < dist
-        closest[better], dist[better] = c_k[better], d_k[better]
+    for tri_k, tree_k in reversed(earlier):
+        reach = float(np.linalg.norm(tri_k - tri_k.mean(axis=1, keepdims=True), axis=2).max())
+        bound = tree_k.query(q, workers=-1)[0] - reach
+        todo = np.nonzero(bound < dist)[0]
+        if len(todo) == 0:
+            continue
+        c_k, d_k, _ = ori.closest_points(q[todo], tri_k, tree_k, candidates)
+        better = d_k < dist[todo]
+        closest[todo[better]], dist[todo[better]] = c_k[better], d_k[better]
     return closest, dist
 
 
