@@ -43,8 +43,8 @@ from curvslice.geodesic import boundary_distance
 
 #: Rings shorter than this many path widths are printed as one short bead along their diameter.
 _DOT_RING = 4.0
-#: A mesh vertex this many path widths from every path is open (a gap); half a width is the
-#: bead's edge, so hairlines between passes spaced a little over a width apart do not count.
+#: A mesh vertex more than ``_GAP - 0.5`` path widths beyond the edge of every bead is open (a
+#: gap): with beads of one width, this many widths from every path; hairlines do not count.
 _GAP = 0.65
 #: Level of the outermost contour in path widths: a little under half a width, so the bead still
 #: reaches a jagged layer boundary (the contour smooths its notches) and the distance field's error.
