@@ -872,10 +872,7 @@ def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
     if not fine or surface.area <= 0:
         return fine, [np.full(len(p), width) for p in fine]
     x, xn = samples if samples is not None else surface_samples(surface, width)
-    fitted, beads, excess = _fit_strips(x, xn, fine, width, min_bead)
-    if excess.max() > 0.02 * width:  # beads held wider than their strips: they claim what they cover
-        fitted, beads, _ = _fit_strips(x, xn, fine, width, min_bead, claim=excess)
-    return fitted, beads
+    return _fit_strips(x, xn, fine, width, min_bead)
 
 
 def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -914,13 +911,9 @@ def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray,
 
 
 def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: float,
-                min_bead: Callable[[np.ndarray], np.ndarray] | None, claim: np.ndarray | None = None
-                ) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
+                min_bead: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """:func:`fit_beads` on passes sampled every ``_FIT_STEP`` widths and surface samples ``x``
-    (triangle normals ``xn``): the shifted passes, their beads and, per point, how much its bead
-    exceeds its strip (held at its floor). With ``claim`` a sample belongs to the point minimizing
-    distance − claim (an additively weighted Voronoi cell: each boundary moves by half the claim),
-    so a bead that cannot narrow keeps its whole breadth and its neighbours give way."""
+    (triangle normals ``xn``): the shifted passes and their beads."""
     counts = np.array([len(p) for p in fine])
     pts = np.vstack(fine)
     n = len(pts)
@@ -933,13 +926,7 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
     first, last = i == lo, i == hi - 1
 
-    tree = cKDTree(pts)
-    if claim is None:
-        _, j = tree.query(x, workers=-1)  # the largest query of the stage: both cores
-    else:
-        dist, idx = tree.query(x, k=min(6, n), workers=-1)
-        dist, idx = dist.reshape(len(x), -1), idx.reshape(len(x), -1)
-        j = idx[np.arange(len(x)), np.argmin(dist - claim[idx], axis=1)]
+    _, j = cKDTree(pts).query(x, workers=-1)  # the largest query of the stage: both cores
     normal = np.stack([np.bincount(j, weights=xn[:, c], minlength=n) for c in range(3)], axis=1)
     normal = np.stack([_window(normal[:, c], lo, hi, 2 * _FIT_HALF, "mean") for c in range(3)], axis=1)
     side = np.cross(normal, tan)
@@ -967,14 +954,13 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     floor = np.full(n, _BEAD_RANGE[0] * width)
     if min_bead is not None:
         floor = np.clip(min_bead(pts), floor, _BEAD_RANGE[1] * width)
-    strip = extent.sum(axis=0)
-    bead = np.clip(strip, floor, _BEAD_RANGE[1] * width)
+    bead = np.clip(extent.sum(axis=0), floor, _BEAD_RANGE[1] * width)
     shift = np.clip(0.5 * (extent[0] - extent[1]), -0.5 * width, 0.5 * width)
     pts = pts + shift[:, None] * side
     grow = np.maximum(reach - 0.5 * bead, 0.0)
     pts[first] -= grow[first, None] * tan[first]
     pts[last] += grow[last, None] * tan[last]
-    return np.split(pts, stop[:-1]), np.split(bead, stop[:-1]), np.maximum(bead - strip, 0.0)
+    return np.split(pts, stop[:-1]), np.split(bead, stop[:-1])
 
 
 def _order_pieces(pieces: list[np.ndarray], widths: list[np.ndarray],

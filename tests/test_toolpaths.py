@@ -320,27 +320,6 @@ def test_needed_pieces_drops_a_sliver_inside_another_bead():
     assert needed_pieces([long_pass, apart], widths[::2], width) == [0, 1]
 
 
-def test_a_bead_held_at_its_floor_keeps_its_breadth_and_the_neighbours_give_way():
-    """The middle of five passes has a 0.7-wide strip but cannot be laid narrower than 1.0 (the
-    layer is that thick there): it claims its whole breadth and the passes beside it narrow, so
-    the beads still tile the plate instead of overlapping by 0.3 along the middle."""
-    width = 1.0
-    mesh = polygon_mesh(sg.box(0, 0, 20, 4.4), 0.25)
-    ys = np.array([0.5, 1.5, 2.2, 2.9, 3.9])
-    passes = [np.c_[np.linspace(0.5, 19.5, 60), np.full(60, y), np.zeros(60)] for y in ys]
-    floor = lambda q: np.where(np.abs(q[:, 1] - 2.2) < 0.2, 1.0, 0.5) * width
-    fitted, beads = fit_beads(mesh, passes, width, min_bead=floor)
-    middle = [(p[:, 0] > 3) & (p[:, 0] < 17) for p in fitted]
-    assert np.median(beads[2][middle[2]]) == pytest.approx(1.0, abs=0.02)
-    for k in (1, 3):  # the neighbours' strips (0.85) end where the held bead ends: 0.15 less
-        assert np.median(beads[k][middle[k]]) == pytest.approx(0.70, abs=0.07)  # (unclaimed: 0.82)
-    pos = np.vstack(fitted)
-    ids = np.repeat(np.arange(len(fitted)), [len(p) for p in fitted])
-    bead = np.concatenate(beads)
-    coverage, overlap = layer_cover(mesh, pos, ids, width, seed=2, bead=np.r_[bead[:1], 0.5 * (bead[1:] + bead[:-1])])
-    assert coverage >= 0.97 and overlap <= 0.04  # (unclaimed: 6 % overlap)
-
-
 def test_uncross_joins_crossing_links_the_other_way():
     """A path over two parallel passes whose links cross (an X): 2-opt leaves the same points in
     an order without the crossing, and shorter."""
