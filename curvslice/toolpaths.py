@@ -1069,18 +1069,18 @@ class Toolpaths:
     seconds: dict[str, float]
 
 
-def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree]],
+def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, float]],
                candidates: int = 12) -> tuple[np.ndarray, np.ndarray]:
     """Closest point under each point on the platform top ``z = 0`` or the ``earlier`` layers'
-    triangles (Eq. 3.3; ``candidates`` nearest triangle centroids tried on each) and the distance
+    triangles (Eq. 3.3; ``candidates`` nearest triangle centroids tried on each; each layer comes
+    with its centroid tree and largest centroid-to-corner reach) and the distance
     to it: the local layer thickness (unclamped). Layers are searched newest first, and a layer
     only for the points it may bring closer: no triangle is nearer than its nearest centroid
     less the layer's largest centroid-to-corner reach."""
     q = np.asarray(points, np.float64).reshape(-1, 3)
     closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
     dist = np.abs(q[:, 2])
-    for tri_k, tree_k in reversed(earlier):
-        reach = float(np.linalg.norm(tri_k - tri_k.mean(axis=1, keepdims=True), axis=2).max())
+    for tri_k, tree_k, reach in reversed(earlier):
         bound = tree_k.query(q, workers=-1)[0] - reach
         todo = np.nonzero(bound < dist)[0]
         if len(todo) == 0:
@@ -1100,7 +1100,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     """
     w = settings.path_width
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness", "bead")}
-    earlier: list[tuple[np.ndarray, cKDTree]] = []
+    earlier: list[tuple[np.ndarray, cKDTree, float]] = []
     per_layer: list[dict[str, float]] = []
     seconds = {"spirals": 0.0, "orientation": 0.0}
     next_path, cursor = 0, None
@@ -1156,7 +1156,8 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             row["subdivided"] = int(len(pos) - len(q))
             row["length_mm"] = round(float(sum(np.linalg.norm(np.diff(s[:, :3], axis=0), axis=1).sum() for s in samples)), 3)
         if len(tri):
-            earlier.append((tri, own_tree))
+            # the reach bounds every later search of this layer (_thickness): computed once
+            earlier.append((tri, own_tree, float(np.linalg.norm(tri - tri.mean(axis=1, keepdims=True), axis=2).max())))
         t2 = perf_counter()
         seconds["spirals"] += t1 - t0
         seconds["orientation"] += t2 - t1

@@ -34,7 +34,7 @@ from curvslice.gcode import Event
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,19}")
 _NUM = r"[-+0-9.eE]+"
-_JOINTTARGET = re.compile(rf"CONST\s+jointtarget\s+(\w+)\s*:=\s*\[\[([^\]]*)\]")
+_JOINTTARGET = re.compile(r"CONST\s+jointtarget\s+(\w+)\s*:=\s*\[\[([^\]]*)\]")
 _MOVEABSJ = re.compile(rf"^\s*MoveAbsJ\s+(\w+)\s*,\s*\w+(?:\\T:=({_NUM}))?")
 _SETDO = re.compile(r"^\s*SetDO\s+(\w+)\s*,\s*([01])\s*;")
 _SETDO_ANY = re.compile(r"SetDO\s+(\w+)\s*,\s*([01])\s*;")
