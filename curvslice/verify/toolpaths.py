@@ -81,8 +81,10 @@ def bead_widths(positions: np.ndarray, path: np.ndarray, extrusion: np.ndarray, 
 
 
 def layer_cover(mesh: trimesh.Trimesh, positions: np.ndarray, path: np.ndarray, width: float,
-                seed: int = 0, max_samples: int = 20000, bead: np.ndarray | None = None) -> tuple[float, float]:
-    """(coverage, overlap) of one layer, by area-weighted random samples of the surface.
+                seed: int = 0, max_samples: int = 100000, bead: np.ndarray | None = None) -> tuple[float, float]:
+    """(coverage, overlap) of one layer, by area-weighted random samples of the surface: one per
+    0.02 w², and never fewer than 10,000, so the standard error of a share near the 5 % limits
+    stays about 0.2 % even on a layer of a few mm² (500 samples gave 1 %, and decided layers by chance).
 
     ``bead`` is the bead width of the segment ending at each sample (default: ``width``); a
     surface sample is covered by the path points within half their bead width, and overlapped
@@ -91,7 +93,7 @@ def layer_cover(mesh: trimesh.Trimesh, positions: np.ndarray, path: np.ndarray, 
     """
     if mesh.area <= 0:
         return 1.0, 0.0
-    count = int(min(max(mesh.area / (0.2 * width * width), 500), max_samples))
+    count = int(min(max(mesh.area / (0.02 * width * width), 10000), max_samples))
     pts, _ = trimesh.sample.sample_surface(mesh, count, seed=seed)
     if len(positions) == 0:
         return 0.0, 0.0
