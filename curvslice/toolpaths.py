@@ -43,6 +43,10 @@ from curvslice.geodesic import boundary_distance
 
 #: Rings shorter than this many path widths are printed as one short bead along their diameter.
 _DOT_RING = 4.0
+#: A lone ring whose inside is narrower than this many widths (:attr:`Ring.breadth`) is printed as
+#: one pass along its centre line: its region, ``2·_FIRST`` widths wider, takes one bead of at most
+#: ``_BEAD_RANGE[1]`` widths, while its two sides would lie closer than a bead.
+_THIN_RING = 0.6
 #: A mesh vertex more than ``_GAP - 0.5`` path widths beyond the edge of every bead is open (a
 #: gap): with beads of one width, this many widths from every path; hairlines do not count.
 _GAP = 0.65
@@ -100,6 +104,14 @@ class Ring:
     def cumlen(self) -> np.ndarray:
         closed = np.vstack([self.points, self.points[:1]])
         return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]
+
+    @property
+    def breadth(self) -> float:
+        """Mean breadth of the ring's inside: area / half the length (the vector area, i.e. the
+        projection on the ring's own plane) -- the gap between the sides of a long thin loop."""
+        p = self.points - self.points.mean(axis=0)
+        area = 0.5 * np.linalg.norm(np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0))
+        return 2.0 * area / max(self.length, 1e-300)
 
 
 @dataclass
@@ -437,6 +449,10 @@ class _Builder:
             hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
         if siblings:
             hosted.setdefault(0, []).extend(siblings)
+        if len(rings) == 1 and not hosted and rings[0].breadth < _THIN_RING * self.w:
+            # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
+            # as the region (fit_beads), instead of two sides printed over each other
+            return _centre_line(rings[0].points, self.w)
         g = self.gap
         arcs: list[np.ndarray] = []
         n = len(rings)

@@ -262,6 +262,30 @@ def test_thin_wall_is_one_ridge_pass_as_wide_as_the_wall(strip):
         assert layer_cover(mesh, s[:, :3], ids, width)[0] < coverage - 0.1
 
 
+def test_thin_loop_is_one_centre_pass(monkeypatch):
+    """A strip 1.3 widths wide with a bulge too wide for a ridge pass (peak distance 0.95 w) gets a
+    contour loop whose sides lie 0.4 w apart; with beads at least 0.9 w wide (the layer thickness)
+    they would overlap along the whole strip. The loop is printed as one pass down its middle."""
+    width = 1.0
+    poly = unary_union([sg.box(0, 0, 20, 1.3), sg.Point(10, 0.65).buffer(0.95, 64)])
+    mesh = polygon_mesh(poly, 0.1)
+
+    def measure():
+        result = layer_paths(mesh, width, min_bead=lambda p: np.full(len(p), 0.9 * width))
+        pos = np.vstack(result.pieces)
+        ids = np.repeat(np.arange(len(result.pieces)), [len(p) for p in result.pieces])
+        return result, layer_cover(mesh, pos, ids, width, seed=1, bead=np.concatenate(result.widths))
+
+    result, (coverage, overlap) = measure()
+    assert result.thin_passes == 0 and result.rings == 1 and len(result.pieces) == 1
+    middle = (result.pieces[0][:, 0] > 2) & (result.pieces[0][:, 0] < 8)
+    assert np.abs(result.pieces[0][middle, 1] - 0.65).max() < 0.1 * width  # on the centre line
+    assert coverage >= 0.95 and overlap <= 0.05
+    monkeypatch.setattr("curvslice.toolpaths._THIN_RING", 0.0)  # the loop itself
+    _, (_, loop_overlap) = measure()
+    assert loop_overlap > 0.1  # measured 0.17
+
+
 def test_fit_beads_tiles_unevenly_spaced_passes():
     """Straight passes across a 20 × 11.2 mm plate at spacings of 0.8 and 1.2 widths: with one bead
     width they leave gaps and overlap; fitted, each bead spans exactly the strip between the
