@@ -639,7 +639,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
         passes += fill
         pieces, widths = fit_beads(surface, passes, width, min_bead, samples)
-    needed = needed_pieces(pieces, widths, width)
+    needed = needed_pieces(pieces, widths, width, samples[0])
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
         pieces, widths = fit_beads(surface, [passes[i] for i in needed], width, min_bead, samples)
     out.gap_passes = len(fill)
@@ -831,33 +831,41 @@ def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, 
     return out
 
 
-def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> list[int]:
-    """Indices of the pieces to keep: a piece shorter than ``_REDUNDANT`` widths with half its
-    points inside the other kept pieces' beads adds nothing but overlap -- typical of slivers of
-    tiny layers, where every bead is at least as wide as the layer is thick. Shortest first."""
+def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: float,
+                  samples: np.ndarray) -> list[int]:
+    """Indices of the pieces to keep: a piece shorter than ``_REDUNDANT`` widths is dropped when
+    more of the surface ``samples`` (points, evenly spread) under its bead lie under other kept
+    beads than under its own alone -- it would add more overlap than coverage. Typical of the
+    slivers and dots of tiny layers, where every bead is at least as wide as the layer is thick;
+    the kept neighbours are refitted over what it leaves. Shortest first."""
     keep = list(range(len(pieces)))
     length = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pieces]
     short = [k for k in sorted(keep, key=lambda i: length[i]) if length[k] < _REDUNDANT * width]
-    if not short or len(pieces) < 2:
+    if not short or len(pieces) < 2 or len(samples) == 0:
         return keep
     pts = np.vstack(pieces)
     label = np.repeat(np.arange(len(pieces)), [len(p) for p in pieces])
     half = 0.5 * np.concatenate(widths)
-    tree = cKDTree(pts)
-    dropped = np.zeros(len(pieces), bool)
+    # the samples under the short beads, and every piece whose bead covers each of them
+    own = np.concatenate([np.nonzero(label == k)[0] for k in short])
+    reach = float(half.max())
+    under = cKDTree(pts[own]).sparse_distance_matrix(cKDTree(samples), reach, output_type="coo_matrix")
+    near = np.unique(under.col[under.data <= half[own][under.row]])
+    if len(near) == 0:
+        return keep
+    hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), reach, output_type="coo_matrix")
+    inside = hits.data <= half[hits.col]
+    pair = np.unique(hits.row[inside] * len(pieces) + label[hits.col[inside]])  # (sample, covering piece)
+    sample, piece = pair // len(pieces), pair % len(pieces)
+    count = np.bincount(sample, minlength=len(near))
     for k in short:
         if len(keep) == 1:
             break
-        near = min(16, len(pts))
-        gap, idx = tree.query(pieces[k], k=near)
-        gap, idx = gap.reshape(len(pieces[k]), near), idx.reshape(len(pieces[k]), near)
-        other = (label[idx] != k) & ~dropped[label[idx]]  # the nearest points of the kept others
-        first = np.argmax(other, axis=1)
-        rows = np.arange(len(idx))
-        inside = other[rows, first] & (gap[rows, first] <= half[idx[rows, first]])
-        if np.mean(inside) >= 0.5:
-            dropped[k] = True
+        mine = sample[piece == k]
+        shared = int(np.sum(count[mine] > 1))
+        if shared >= len(mine) - shared:
             keep.remove(k)
+            count[mine] -= 1
     return keep
 
 

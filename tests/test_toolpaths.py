@@ -340,8 +340,15 @@ def test_needed_pieces_drops_a_sliver_inside_another_bead():
     apart = np.c_[np.linspace(5, 7, 21), np.full(21, 2.0), np.zeros(21)]  # its own strip
     pieces = [long_pass, inside, apart]
     widths = [np.full(len(p), width) for p in pieces]
-    assert needed_pieces(pieces, widths, width) == [0, 2]
-    assert needed_pieces([long_pass, apart], widths[::2], width) == [0, 1]
+    x, y = np.meshgrid(np.arange(0, 20, 0.05), np.arange(-0.5, 2.5, 0.05))
+    samples = np.c_[x.ravel(), y.ravel(), np.zeros(x.size)]  # the plate under the beads
+    assert needed_pieces(pieces, widths, width, samples) == [0, 2]
+    assert needed_pieces([long_pass, apart], widths[::2], width, samples) == [0, 1]
+    # a dot at the plate's edge, half over the long bead: more shared than its own -> dropped;
+    # beside the bead (a quarter over it) -> kept
+    for y0, kept in [(0.4, [0]), (0.8, [0, 1])]:
+        dot = np.array([[10.0, y0, 0.0], [10.05, y0, 0.0]])
+        assert needed_pieces([long_pass, dot], [widths[0], np.full(2, width)], width, samples) == kept
 
 
 def test_uncross_joins_crossing_links_the_other_way():
