@@ -127,7 +127,7 @@ class LayerPaths:
     splices: int = 0
     failed_splices: int = 0
     closed_components: int = 0
-    gap_passes: int = 0
+    gap_passes: int = 0  #: passes through what the others leave open, kept after needed_pieces
     bridged_holes: int = 0
     travel: float = 0.0
     max_distance: float = 0.0
@@ -642,7 +642,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     needed = needed_pieces(pieces, widths, width, samples[0])
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
         pieces, widths = fit_beads(surface, [passes[i] for i in needed], width, min_bead, samples)
-    out.gap_passes = len(fill)
+    out.gap_passes = sum(i >= len(passes) - len(fill) for i in needed)
     out.splices, out.failed_splices = builder.splices, builder.failed
     orders = [uncross(p, width) for p in pieces]
     pieces, widths = [p[o] for p, o in zip(pieces, orders)], [b[o] for b, o in zip(widths, orders)]
@@ -732,14 +732,16 @@ def _longest_path(graph: sp.csr_matrix) -> np.ndarray:
 
 
 def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray], width: float,
-               widths: list[np.ndarray] | None = None, min_vertices: int = 4) -> list[np.ndarray]:
+               widths: list[np.ndarray] | None = None, min_vertices: int = 3) -> list[np.ndarray]:
     """Extra passes through what the spirals leave open: narrow strips (thinner than a bead, where
     no contour exists) and the medial-axis gaps between contour families (thesis §3.7).
 
     Vertices more than ``_GAP - 0.5`` widths beyond the edge of every bead (``widths``: each piece
-    vertex's bead, default ``width``) form connected patches; each patch at
-    least a width long gets one pass along its longest shortest path (two Dijkstra sweeps on its
-    mesh edges), which runs down the middle of a strip.
+    vertex's bead, default ``width``) form connected patches; each patch at least
+    ``min_vertices`` vertices and half a width long -- down to the tips of a layer that its outermost
+    contour cuts short -- gets one pass along its longest shortest path (two Dijkstra sweeps on its
+    mesh edges), which runs down the middle of a strip. (:func:`needed_pieces` then drops those
+    that add more overlap than coverage.)
     """
     v = np.asarray(vertices, np.float64)
     if not pieces:
@@ -762,7 +764,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     for c in np.nonzero(sizes >= min_vertices)[0]:
         members = np.nonzero((label == c) & open_v)[0]
         chain = members[_longest_path(graph[members][:, members])]
-        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= width:
+        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= 0.5 * width:
             passes.append(v[chain])
     return passes
 
