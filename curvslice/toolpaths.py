@@ -80,6 +80,8 @@ _FIT_SAMPLE = 0.02
 _FIT_HALF = 3
 #: Pieces shorter than this many widths are dropped when the other beads already cover them.
 _REDUNDANT = 4.0
+#: Share of a layer that a short gap pass must cover on its own to be worth its jump.
+_MINOR = 0.005
 #: Re-sampling of the fitted passes: a bead width change counts this many times its size as path
 #: length, so a cap or a narrowing is not averaged away over a 1 mm step (:func:`resample`).
 _WIDTH_WEIGHT = 5.0
@@ -639,7 +641,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
         passes += fill
         pieces, widths = fit_beads(surface, passes, width, min_bead, samples)
-    needed = needed_pieces(pieces, widths, width, samples[0])
+    needed = needed_pieces(pieces, widths, width, samples[0], np.arange(len(passes)) >= len(passes) - len(fill))
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
         pieces, widths = fit_beads(surface, [passes[i] for i in needed], width, min_bead, samples)
     out.gap_passes = sum(i >= len(passes) - len(fill) for i in needed)
@@ -834,12 +836,14 @@ def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, 
 
 
 def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: float,
-                  samples: np.ndarray) -> list[int]:
+                  samples: np.ndarray, gap: np.ndarray | None = None) -> list[int]:
     """Indices of the pieces to keep: a piece shorter than ``_REDUNDANT`` widths is dropped when
     more of the surface ``samples`` (points, evenly spread) under its bead lie under other kept
     beads than under its own alone -- it would add more overlap than coverage. Typical of the
     slivers and dots of tiny layers, where every bead is at least as wide as the layer is thick;
-    the kept neighbours are refitted over what it leaves. Shortest first."""
+    the kept neighbours are refitted over what it leaves. A short gap pass (``gap``: a mask of
+    the pieces) is also dropped when what it alone covers is under ``_MINOR`` of the layer: a
+    jump is not worth that. Shortest first."""
     keep = list(range(len(pieces)))
     length = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pieces]
     short = [k for k in sorted(keep, key=lambda i: length[i]) if length[k] < _REDUNDANT * width]
@@ -865,7 +869,8 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
             break
         mine = sample[piece == k]
         shared = int(np.sum(count[mine] > 1))
-        if shared >= len(mine) - shared:
+        alone = len(mine) - shared
+        if shared >= alone or (gap is not None and gap[k] and alone < _MINOR * len(samples)):
             keep.remove(k)
             count[mine] -= 1
     return keep

@@ -349,6 +349,11 @@ def test_needed_pieces_drops_a_sliver_inside_another_bead():
     for y0, kept in [(0.4, [0]), (0.8, [0, 1])]:
         dot = np.array([[10.0, y0, 0.0], [10.05, y0, 0.0]])
         assert needed_pieces([long_pass, dot], [widths[0], np.full(2, width)], width, samples) == kept
+    # a small gap pass on its own: worth its jump only if it covers 0.5 % of the layer
+    speck = np.array([[10.0, 1.5, 0.0], [10.05, 1.5, 0.0]])
+    for bead, gap, kept in [(0.3, False, [0, 1]), (0.3, True, [0]), (1.0, True, [0, 1])]:
+        assert needed_pieces([long_pass, speck], [widths[0], np.full(2, bead)], width, samples,
+                             np.array([False, gap])) == kept
 
 
 def test_uncross_joins_crossing_links_the_other_way():
