@@ -55,9 +55,11 @@ def _corner_cotangents(v: np.ndarray, f: np.ndarray) -> np.ndarray:
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """(B,2) vertex pairs of the edges used by exactly one triangle."""
     f = np.asarray(faces, dtype=np.int64)
-    edges = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
-    uniq, counts = np.unique(edges, axis=0, return_counts=True)
-    return uniq[counts == 1]
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    n = int(f.max()) + 1 if len(f) else 1
+    code, counts = np.unique(edges.min(axis=1) * n + edges.max(axis=1), return_counts=True)  # 1-D keys
+    single = code[counts == 1]
+    return np.c_[single // n, single % n]
 
 
 def _face_gradient(v: np.ndarray, f: np.ndarray, u: np.ndarray) -> np.ndarray:

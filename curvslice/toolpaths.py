@@ -552,8 +552,9 @@ def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: f
     """
     f = np.asarray(faces, np.int64)
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    key = np.sort(directed, axis=1)
-    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    n_v = int(f.max()) + 1 if len(f) else 1
+    _, inverse, counts = np.unique(directed.min(axis=1) * n_v + directed.max(axis=1), return_inverse=True,
+                                   return_counts=True)  # 1-D keys: far faster than rows
     border = directed[counts[inverse.ravel()] == 1]
     if len(border) == 0:
         return vertices, f, 0
@@ -754,7 +755,8 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
         open_v = gap > 0.5 * dense[nearest, 3] + (_GAP - 0.5) * width
     edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    edges = np.unique(edges[open_v[edges].all(axis=1)], axis=0)
+    code = np.unique(edges[open_v[edges].all(axis=1)] @ np.array([len(v), 1]))  # (sorted rows) 1-D keys
+    edges = np.c_[code // len(v), code % len(v)]
     if len(edges) == 0:
         return []
     length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
@@ -862,12 +864,14 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), reach, output_type="coo_matrix")
     inside = hits.data <= half[hits.col]
     pair = np.unique(hits.row[inside] * len(pieces) + label[hits.col[inside]])  # (sample, covering piece)
-    sample, piece = pair // len(pieces), pair % len(pieces)
+    by_piece = np.argsort(pair % len(pieces), kind="stable")
+    sample, piece = pair[by_piece] // len(pieces), pair[by_piece] % len(pieces)
+    bounds = np.searchsorted(piece, np.arange(len(pieces) + 1))
     count = np.bincount(sample, minlength=len(near))
     for k in short:
         if len(keep) == 1:
             break
-        mine = sample[piece == k]
+        mine = sample[bounds[k]:bounds[k + 1]]
         shared = int(np.sum(count[mine] > 1))
         alone = len(mine) - shared
         if shared >= alone or (gap is not None and gap[k] and alone < _MINOR * len(samples)):
