@@ -855,10 +855,13 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     label = np.repeat(np.arange(len(pieces)), [len(p) for p in pieces])
     half = 0.5 * np.concatenate(widths)
     # the samples under the short beads, and every piece whose bead covers each of them
-    own = np.concatenate([np.nonzero(label == k)[0] for k in short])
+    stop = np.cumsum([len(p) for p in pieces])
+    own = np.concatenate([np.arange(stop[k] - len(pieces[k]), stop[k]) for k in short])
     reach = float(half.max())
-    under = cKDTree(pts[own]).sparse_distance_matrix(cKDTree(samples), reach, output_type="coo_matrix")
-    near = np.unique(under.col[under.data <= half[own][under.row]])
+    short_tree = cKDTree(pts[own])
+    close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=-1)[0]))[0]
+    under = short_tree.sparse_distance_matrix(cKDTree(samples[close]), reach, output_type="coo_matrix")
+    near = close[np.unique(under.col[under.data <= half[own][under.row]])]
     if len(near) == 0:
         return keep
     hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), reach, output_type="coo_matrix")
