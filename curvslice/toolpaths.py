@@ -782,7 +782,7 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
     spliced child spiral -- can, where the cuts of neighbouring rings drift apart (Zhao et al.
     2016 align them on one cut line) or once :func:`fit_beads` has moved the passes sideways.
     Two segments cross when they come within ``0.01·width`` of each other at inner points, more
-    than 15° apart.
+    than 15° apart. Crossings whose stretches do not overlap are undone in the same round.
     """
     order = np.arange(len(piece))
     for _ in range(rounds):
@@ -816,8 +816,11 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
         hit = (gap < 0.01 * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(np.radians(15)))
         if not hit.any():
             return order
-        k = int(np.argmax(hit))
-        order = np.r_[order[:i[k] + 1], order[i[k] + 1:j[k] + 1][::-1], order[j[k] + 1:]]
+        last = -2
+        for a_k, b_k in sorted(zip(i[hit].tolist(), j[hit].tolist())):  # crossings whose stretches
+            if a_k > last:  # do not overlap are undone in the same round
+                order[a_k + 1:b_k + 1] = order[a_k + 1:b_k + 1][::-1].copy()
+                last = b_k + 1
     return order
 
 
