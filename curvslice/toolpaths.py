@@ -636,15 +636,24 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     out.pieces.extend(builder.extra_pieces + lines)
     out.regions += len(lines) + len(thin)
     passes = [p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
-    samples = surface_samples(surface, width)
-    pieces, widths = fit_beads(surface, passes, width, min_bead, samples)
+    x, xn = surface_samples(surface, width)
+    owners = _Owners(x, [resample(p, _FIT_STEP * width) for p in passes])
+
+    def fit() -> tuple[list[np.ndarray], list[np.ndarray]]:  # fit_beads on the owners' passes
+        if not owners.fine or surface.area <= 0:
+            return owners.fine, [np.full(len(p), width) for p in owners.fine]
+        return _fit_strips(x, xn, owners.fine, width, min_bead, owners.j)
+
+    pieces, widths = fit()
     fill = gap_passes(v, f, pieces, width, widths) if fill_gaps and len(f) else []
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
         passes += fill
-        pieces, widths = fit_beads(surface, passes, width, min_bead, samples)
-    needed = needed_pieces(pieces, widths, width, samples[0], np.arange(len(passes)) >= len(passes) - len(fill))
+        owners.add([resample(p, _FIT_STEP * width) for p in fill])
+        pieces, widths = fit()
+    needed = needed_pieces(pieces, widths, width, x, np.arange(len(passes)) >= len(passes) - len(fill))
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
-        pieces, widths = fit_beads(surface, [passes[i] for i in needed], width, min_bead, samples)
+        owners.keep(needed)
+        pieces, widths = fit()
     out.gap_passes = sum(i >= len(passes) - len(fill) for i in needed)
     out.splices, out.failed_splices = builder.splices, builder.failed
     orders = [uncross(p, width) for p in pieces]
@@ -916,6 +925,36 @@ def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
     return _fit_strips(x, xn, fine, width, min_bead)
 
 
+class _Owners:
+    """The nearest pass point of every surface sample ``x`` (index into the stacked ``fine``
+    passes) while passes are added and dropped: the nearest of the remaining passes stays the
+    nearest, so only the new passes or the orphaned samples are searched (one KD query each)."""
+
+    def __init__(self, x: np.ndarray, fine: list[np.ndarray]):
+        self.x, self.fine = x, []
+        self.d, self.j = np.full(len(x), np.inf), np.zeros(len(x), np.int64)
+        self.add(fine)
+
+    def add(self, fine: list[np.ndarray]) -> None:
+        if fine and len(self.x):
+            d, j = cKDTree(np.vstack(fine)).query(self.x, workers=-1)
+            better = d < self.d
+            self.d[better], self.j[better] = d[better], sum(len(p) for p in self.fine) + j[better]
+        self.fine = self.fine + list(fine)
+
+    def keep(self, indices: list[int]) -> None:
+        counts = np.array([len(p) for p in self.fine], np.int64)
+        start = np.cumsum(counts) - counts
+        renumber = np.full(int(counts.sum()), -1, np.int64)
+        kept = counts[indices]
+        renumber[np.concatenate([np.arange(start[i], start[i] + counts[i]) for i in indices])] = np.arange(kept.sum())
+        self.fine = [self.fine[i] for i in indices]
+        self.j = renumber[self.j]
+        orphan = np.nonzero(self.j < 0)[0]
+        if len(orphan):
+            self.d[orphan], self.j[orphan] = cKDTree(np.vstack(self.fine)).query(self.x[orphan], workers=-1)
+
+
 def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     """Largest of ``values`` per ``index`` in ``range(n)``, at least 0 (``np.maximum.at``, sorted)."""
     out = np.zeros(n)
@@ -952,9 +991,11 @@ def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray,
 
 
 def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: float,
-                min_bead: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                min_bead: Callable[[np.ndarray], np.ndarray] | None,
+                nearest: np.ndarray | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """:func:`fit_beads` on passes sampled every ``_FIT_STEP`` widths and surface samples ``x``
-    (triangle normals ``xn``): the shifted passes and their beads."""
+    (triangle normals ``xn``): the shifted passes and their beads. ``nearest``: each sample's
+    nearest pass point if known (:class:`_Owners`)."""
     counts = np.array([len(p) for p in fine])
     pts = np.vstack(fine)
     n = len(pts)
@@ -967,7 +1008,7 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
     first, last = i == lo, i == hi - 1
 
-    _, j = cKDTree(pts).query(x, workers=-1)  # the largest query of the stage: both cores
+    j = nearest if nearest is not None else cKDTree(pts).query(x, workers=-1)[1]  # (both cores)
     normal = np.stack([np.bincount(j, weights=xn[:, c], minlength=n) for c in range(3)], axis=1)
     normal = np.stack([_window(normal[:, c], lo, hi, 2 * _FIT_HALF, "mean") for c in range(3)], axis=1)
     side = np.cross(normal, tan)
