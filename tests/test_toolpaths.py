@@ -356,6 +356,25 @@ def test_needed_pieces_drops_a_sliver_inside_another_bead():
                              np.array([False, gap])) == kept
 
 
+def test_owners_track_nearest_pass_points_as_passes_come_and_go():
+    """The fits' shared nearest-pass bookkeeping equals a fresh KD query after passes are added
+    and dropped."""
+    from scipy.spatial import cKDTree
+
+    from curvslice.toolpaths import _Owners
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0, 10, (4000, 3))
+    passes = [rng.uniform(0, 10, (n, 3)) for n in (50, 7, 120, 3, 60)]
+    for keep in ([0, 2, 3, 4], [1, 3], [4]):
+        owners = _Owners(x, passes[:2])
+        owners.add(passes[2:])
+        owners.keep(keep)
+        kept = [passes[i] for i in keep]
+        assert [len(p) for p in owners.fine] == [len(p) for p in kept]
+        d, j = cKDTree(np.vstack(kept)).query(x)
+        assert np.array_equal(owners.j, j) and np.allclose(owners.d, d)
+
+
 def test_uncross_joins_crossing_links_the_other_way():
     """A path over two parallel passes whose links cross (an X): 2-opt leaves the same points in
     an order without the crossing, and shorter."""
