@@ -52,12 +52,19 @@ def _corner_cotangents(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     return out
 
 
+def edge_keys(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """One integer per undirected edge (a, b) of vertices in ``range(n)``: ``min·n + max``, so
+    edges sort and compare as plain integers (``np.unique(axis=0)`` on rows is far slower).
+    ``key // n, key % n`` gives the sorted pair back."""
+    a, b = np.asarray(a, np.int64), np.asarray(b, np.int64)
+    return np.minimum(a, b) * n + np.maximum(a, b)
+
+
 def boundary_edges(faces: np.ndarray) -> np.ndarray:
     """(B,2) vertex pairs of the edges used by exactly one triangle."""
     f = np.asarray(faces, dtype=np.int64)
-    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     n = int(f.max()) + 1 if len(f) else 1
-    code, counts = np.unique(edges.min(axis=1) * n + edges.max(axis=1), return_counts=True)  # 1-D keys
+    code, counts = np.unique(edge_keys(f, np.roll(f, -1, axis=1), n), return_counts=True)
     single = code[counts == 1]
     return np.c_[single // n, single % n]
 

@@ -39,7 +39,7 @@ from curvslice import orientation as ori
 from curvslice.errors import CurvsliceError
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.flow import filament_length
-from curvslice.geodesic import boundary_distance
+from curvslice.geodesic import boundary_distance, edge_keys
 
 #: Rings shorter than this many path widths are printed as one short bead along their diameter.
 _DOT_RING = 4.0
@@ -144,10 +144,7 @@ class LayerPaths:
 
 def _edge_ids(faces: np.ndarray, n_vertices: int) -> np.ndarray:
     """(F,3) undirected edge id of the edge from corner c to corner c+1."""
-    a = faces
-    b = np.roll(faces, -1, axis=1)
-    code = np.minimum(a, b).astype(np.int64) * n_vertices + np.maximum(a, b)
-    _, inverse = np.unique(code.ravel(), return_inverse=True)
+    _, inverse = np.unique(edge_keys(faces, np.roll(faces, -1, axis=1), n_vertices).ravel(), return_inverse=True)
     return inverse.reshape(faces.shape)
 
 
@@ -553,8 +550,8 @@ def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: f
     f = np.asarray(faces, np.int64)
     directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     n_v = int(f.max()) + 1 if len(f) else 1
-    _, inverse, counts = np.unique(directed.min(axis=1) * n_v + directed.max(axis=1), return_inverse=True,
-                                   return_counts=True)  # 1-D keys: far faster than rows
+    _, inverse, counts = np.unique(edge_keys(directed[:, 0], directed[:, 1], n_v), return_inverse=True,
+                                   return_counts=True)
     border = directed[counts[inverse.ravel()] == 1]
     if len(border) == 0:
         return vertices, f, 0
@@ -636,25 +633,19 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     out.pieces.extend(builder.extra_pieces + lines)
     out.regions += len(lines) + len(thin)
     passes = [p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
-    x, xn = surface_samples(surface, width)
-    owners = _Owners(x, [resample(p, _FIT_STEP * width) for p in passes])
-
-    def fit() -> tuple[list[np.ndarray], list[np.ndarray]]:  # fit_beads on the owners' passes
-        if not owners.fine or surface.area <= 0:
-            return owners.fine, [np.full(len(p), width) for p in owners.fine]
-        return _fit_strips(x, xn, owners.fine, width, min_bead, owners.j)
-
-    pieces, widths = fit()
+    samples = surface_samples(surface, width)
+    owners = _Owners(samples[0], [resample(p, _FIT_STEP * width) for p in passes])
+    pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
     fill = gap_passes(v, f, pieces, width, widths) if fill_gaps and len(f) else []
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
-        passes += fill
         owners.add([resample(p, _FIT_STEP * width) for p in fill])
-        pieces, widths = fit()
-    needed = needed_pieces(pieces, widths, width, x, np.arange(len(passes)) >= len(passes) - len(fill))
+        pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
+    is_gap = np.arange(len(pieces)) >= len(pieces) - len(fill)
+    needed = needed_pieces(pieces, widths, width, samples[0], is_gap)
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
         owners.keep(needed)
-        pieces, widths = fit()
-    out.gap_passes = sum(i >= len(passes) - len(fill) for i in needed)
+        pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
+    out.gap_passes = int(is_gap[needed].sum())
     out.splices, out.failed_splices = builder.splices, builder.failed
     orders = [uncross(p, width) for p in pieces]
     pieces, widths = [p[o] for p, o in zip(pieces, orders)], [b[o] for b, o in zip(widths, orders)]
@@ -677,7 +668,7 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
     f = np.asarray(faces, np.int64)
     n = len(vertices)
     pairs = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
-    code = np.unique(pairs.min(axis=1) * n + pairs.max(axis=1))  # 1-D keys: far faster than rows
+    code = np.unique(edge_keys(pairs[:, 0], pairs[:, 1], n))
     edges = np.c_[code // n, code % n]
     graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     _, label = connected_components(graph, directed=False)
@@ -763,8 +754,9 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         dense = np.vstack([resample(np.c_[p, b], 0.1 * width) for p, b in zip(pieces, widths)])
         gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
         open_v = gap > 0.5 * dense[nearest, 3] + (_GAP - 0.5) * width
-    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    code = np.unique(edges[open_v[edges].all(axis=1)] @ np.array([len(v), 1]))  # (sorted rows) 1-D keys
+    ring = np.roll(faces, -1, axis=1)
+    inside = open_v[faces] & open_v[ring]
+    code = np.unique(edge_keys(faces[inside], ring[inside], len(v)))
     edges = np.c_[code // len(v), code % len(v)]
     if len(edges) == 0:
         return []
@@ -921,8 +913,17 @@ def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
     fine = [p for p in fine if len(p) >= 2]
     if not fine or surface.area <= 0:
         return fine, [np.full(len(p), width) for p in fine]
-    x, xn = samples if samples is not None else surface_samples(surface, width)
-    return _fit_strips(x, xn, fine, width, min_bead)
+    samples = samples if samples is not None else surface_samples(surface, width)
+    return _fit_owned(surface, samples, _Owners(samples[0], fine), width, min_bead)
+
+
+def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray], owners: _Owners, width: float,
+               min_bead: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`fit_beads` of the passes ``owners`` holds (already sampled every ``_FIT_STEP``
+    widths, with the samples' nearest points); unfitted, one width, without any surface."""
+    if not owners.fine or surface.area <= 0:
+        return owners.fine, [np.full(len(p), width) for p in owners.fine]
+    return _fit_strips(samples[0], samples[1], owners.fine, width, min_bead, owners.j)
 
 
 class _Owners:
@@ -992,10 +993,10 @@ def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray,
 
 def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: float,
                 min_bead: Callable[[np.ndarray], np.ndarray] | None,
-                nearest: np.ndarray | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                j: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """:func:`fit_beads` on passes sampled every ``_FIT_STEP`` widths and surface samples ``x``
-    (triangle normals ``xn``): the shifted passes and their beads. ``nearest``: each sample's
-    nearest pass point if known (:class:`_Owners`)."""
+    (triangle normals ``xn``; ``j`` the nearest pass point of each, :class:`_Owners`): the
+    shifted passes and their beads."""
     counts = np.array([len(p) for p in fine])
     pts = np.vstack(fine)
     n = len(pts)
@@ -1008,7 +1009,6 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
     first, last = i == lo, i == hi - 1
 
-    j = nearest if nearest is not None else cKDTree(pts).query(x, workers=-1)[1]  # (both cores)
     normal = np.stack([np.bincount(j, weights=xn[:, c], minlength=n) for c in range(3)], axis=1)
     normal = np.stack([_window(normal[:, c], lo, hi, 2 * _FIT_HALF, "mean") for c in range(3)], axis=1)
     side = np.cross(normal, tan)
