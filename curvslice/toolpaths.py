@@ -87,6 +87,17 @@ _MINOR = 0.005
 _WIDTH_WEIGHT = 5.0
 #: Added to each side of a fitted strip (widths): the lattice samples still fall short of its edge.
 _FIT_MARGIN = 0.01
+#: Re-sampling of the fitted passes: a radian of turn counts as this many widths of path length,
+#: so a bend keeps its samples and the 1 mm chords do not cut the corners of wavy passes.
+_TURN_WEIGHT = 1.0
+#: Cut of a Fermat spiral (thesis §3.5.1; Zhao et al. 2016): each ring of a chain of three or more
+#: opens over ``length / _CUT_SHARE``, between ``_CUT`` widths; the links in and out of the
+#: spiral cross the rings there, ``(g/2)·2w/√(4w² + g²)`` apart (0.71 w at g = 2 w, 0.83 w at 3 w).
+_CUT = (2.0, 3.0)
+_CUT_SHARE = 6.0
+#: :func:`contour_gap` within this of 1 is the measure's own error (a flat square 0.995, a flat
+#: disc 1.007): the distance is left as it is.
+_GAP_NOISE = 0.01
 
 
 @dataclass
@@ -252,6 +263,29 @@ def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
     return rings, bands
 
 
+def contour_gap(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, width: float) -> float:
+    """Median 3D gap between the contours of ``dist`` at adjacent levels ``width`` apart, per
+    ``width`` (from each contour point, sampled every 0.1 widths, to the nearest of the level
+    below); 1 when there are fewer than two levels.
+
+    The heat-method distance runs along the layer's facets: on a layer dual-contoured from a
+    voxel field the facets step with the voxels, and the distance grows faster than the straight
+    3D gap that a bead spans (median gap 0.95-0.99 w on the kitten's and bunny's layers). Scaling
+    the distance by this ratio spaces the passes one width apart in 3D (thesis §3.5.1: passes a
+    path width apart), instead of laying the beads of such a layer over each other."""
+    finite = dist[np.isfinite(dist)]
+    levels = np.arange(_FIRST * width, float(finite.max()) if len(finite) else 0.0, width)
+    if len(levels) < 2:
+        return 1.0
+    rings, _ = contour_rings(vertices, faces, dist, levels)
+    by_level: dict[float, list[np.ndarray]] = {}
+    for r in rings:
+        by_level.setdefault(r.level, []).append(resample(np.vstack([r.points, r.points[:1]]), 0.1 * width))
+    ordered = [np.vstack(by_level[k]) for k in sorted(by_level)]
+    gaps = [cKDTree(a).query(b, workers=-1)[0] for a, b in zip(ordered[:-1], ordered[1:])]
+    return float(np.median(np.concatenate(gaps))) / width if gaps else 1.0
+
+
 def prune_islands(rings: list[Ring], comp_top: np.ndarray, width: float) -> list[Ring]:
     """Drop rings around a peak that rises less than a quarter width above their level: along a
     ridge these are islands of the distance field's noise, and printing one would lay two passes
@@ -409,7 +443,7 @@ class _Builder:
     def __init__(self, tree: _Tree, width: float):
         self.tree = tree
         self.w = width
-        self.gap = 2.0 * width
+        self.gap = _CUT[0] * width
         self.extra_pieces: list[np.ndarray] = []
         self.splices = 0
         self.failed = 0
@@ -452,7 +486,6 @@ class _Builder:
             # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
             # as the region (fit_beads), instead of two sides printed over each other
             return _centre_line(rings[0].points, self.w)
-        g = self.gap
         arcs: list[np.ndarray] = []
         n = len(rings)
         order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
@@ -465,6 +498,7 @@ class _Builder:
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
+            g = float(np.clip(ring.length / _CUT_SHARE, _CUT[0] * self.w, _CUT[1] * self.w)) if n >= 3 else self.gap
             if k % 2 == 0:
                 start, end, direction = s - g / 2, s + g / 2, -1
             else:
@@ -602,6 +636,9 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     if len(f) == 0:
         return LayerPaths(pieces=[])
     dist = boundary_distance(v, f)
+    gap = contour_gap(v, f, dist, width)
+    if abs(gap - 1.0) > _GAP_NOISE:
+        dist = dist * gap
     f, thin = thin_passes(v, f, dist, width)
     closed = int(np.isnan(dist).any())
     finite = dist[np.isfinite(dist)]
@@ -641,10 +678,18 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
         owners.add([resample(p, _FIT_STEP * width) for p in fill])
         pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
     is_gap = np.arange(len(pieces)) >= len(pieces) - len(fill)
-    needed = needed_pieces(pieces, widths, width, samples[0], is_gap)
+    needed = needed_pieces(pieces, widths, width, samples[0], is_gap, take_over=True)
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
-        owners.keep(needed)
-        pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
+        kept = owners.kept(needed)
+        refit = _fit_owned(surface, samples, kept, width, min_bead)
+        label = np.repeat(np.arange(len(pieces)), [len(p) for p in pieces])
+        orphans = samples[0][~np.isin(label[owners.j], needed)]
+        if _faults(orphans, *refit, width) - _faults(orphans, pieces, widths, width) > _MINOR * len(samples[0]):
+            # a refitted bead fell short of what it was to take over (a corner, a pass end)
+            needed = needed_pieces(pieces, widths, width, samples[0], is_gap, take_over=False)
+            kept = owners.kept(needed)
+            refit = _fit_owned(surface, samples, kept, width, min_bead)
+        owners, (pieces, widths) = kept, refit
     out.gap_passes = int(is_gap[needed].sum())
     out.splices, out.failed_splices = builder.splices, builder.failed
     orders = [uncross(p, width) for p in pieces]
@@ -782,8 +827,9 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
     Contour arcs never cross each other; the links between them -- from ring to ring, into a
     spliced child spiral -- can, where the cuts of neighbouring rings drift apart (Zhao et al.
     2016 align them on one cut line) or once :func:`fit_beads` has moved the passes sideways.
-    Two segments cross when they come within ``0.01·width`` of each other at inner points, more
-    than 15° apart. Crossings whose stretches do not overlap are undone in the same round.
+    Two segments cross when they come within ``0.1·width`` of each other at inner points, more
+    than 15° apart (their closest points are where their projections along the common normal
+    cross; fitted passes are shifted in the tangent plane, off a stepped layer by up to ~0.05 mm). Crossings whose stretches do not overlap are undone in the same round.
     """
     order = np.arange(len(piece))
     for _ in range(rounds):
@@ -814,7 +860,7 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
             t = np.clip((uu * vw - uv * uw) / den, 0, 1)
         gap = np.linalg.norm(w0 + s[:, None] * u - t[:, None] * v, axis=1)
         sin = np.sqrt(np.maximum(den, 0)) / np.maximum(np.sqrt(uu * vv), 1e-300)
-        hit = (gap < 0.01 * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(np.radians(15)))
+        hit = (gap < 0.1 * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(np.radians(15)))
         if not hit.any():
             return order
         last = -2
@@ -842,14 +888,17 @@ def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, 
 
 
 def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: float,
-                  samples: np.ndarray, gap: np.ndarray | None = None) -> list[int]:
+                  samples: np.ndarray, gap: np.ndarray | None = None, take_over: bool = True) -> list[int]:
     """Indices of the pieces to keep: a piece shorter than ``_REDUNDANT`` widths is dropped when
     more of the surface ``samples`` (points, evenly spread) under its bead lie under other kept
     beads than under its own alone -- it would add more overlap than coverage. Typical of the
     slivers and dots of tiny layers, where every bead is at least as wide as the layer is thick;
     the kept neighbours are refitted over what it leaves. A short gap pass (``gap``: a mask of
     the pieces) is also dropped when what it alone covers is under ``_MINOR`` of the layer: a
-    jump is not worth that. Shortest first."""
+    jump is not worth that. With ``take_over``, samples under its bead alone do not count for it
+    where the nearest other kept pass can take them over once refitted: its bead, grown towards
+    them by a shift of at most half a width, stays within the widest bead (``_BEAD_RANGE``) --
+    the caller checks the refit (:func:`_faults`). Shortest first."""
     keep = list(range(len(pieces)))
     length = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pieces]
     short = [k for k in sorted(keep, key=lambda i: length[i]) if length[k] < _REDUNDANT * width]
@@ -868,28 +917,43 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     near = close[np.unique(under.col[under.data <= half[own][under.row]])]
     if len(near) == 0:
         return keep
-    hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), reach, output_type="coo_matrix")
-    inside = hits.data <= half[hits.col]
-    pair = np.unique(hits.row[inside] * len(pieces) + label[hits.col[inside]])  # (sample, covering piece)
+    widest = _BEAD_RANGE[1] * width
+    hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), max(reach, widest), output_type="coo_matrix")
+    # the nearest point of every piece within the widest bead of each sample
+    code = hits.row * len(pieces) + label[hits.col]
+    first = np.lexsort((hits.data, code))
+    first = first[np.r_[True, code[first][1:] != code[first][:-1]]]
+    first = first[np.lexsort((hits.data[first], hits.row[first]))]  # by sample, nearest piece first
+    row, piece_of, gap_of, half_of = hits.row[first], label[hits.col[first]], hits.data[first], half[hits.col[first]]
+    inside = gap_of <= half_of
+    pair = row[inside] * len(pieces) + piece_of[inside]  # (sample, covering piece), unique
     by_piece = np.argsort(pair % len(pieces), kind="stable")
     sample, piece = pair[by_piece] // len(pieces), pair[by_piece] % len(pieces)
     bounds = np.searchsorted(piece, np.arange(len(pieces) + 1))
     count = np.bincount(sample, minlength=len(near))
+    kept = np.ones(len(pieces), bool)
     for k in short:
         if len(keep) == 1:
             break
         mine = sample[bounds[k]:bounds[k + 1]]
-        shared = int(np.sum(count[mine] > 1))
-        alone = len(mine) - shared
-        if shared >= alone or (gap is not None and gap[k] and alone < _MINOR * len(samples)):
+        alone = mine[count[mine] == 1]
+        # what the nearest other kept pass takes over once refitted: its bead grows towards the
+        # sample, up to the widest bead and by a shift of at most half a width
+        other = np.isin(row, alone) & (piece_of != k) & kept[piece_of]
+        o_row, o_gap, o_half = row[other], gap_of[other], half_of[other]
+        nearest = np.r_[True, o_row[1:] != o_row[:-1]] if len(o_row) else np.zeros(0, bool)
+        taken = (o_gap + o_half <= widest) & (o_gap <= width + o_half) & take_over
+        only = len(alone) - int(np.sum(taken[nearest]))
+        if len(mine) - len(alone) >= only or (gap is not None and gap[k] and only < _MINOR * len(samples)):
             keep.remove(k)
+            kept[k] = False
             count[mine] -= 1
     return keep
 
 
 def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
               min_bead: Callable[[np.ndarray], np.ndarray] | None = None,
-              samples: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+              samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Centre every pass in the strip of surface nearest to it and make its bead as wide as that
     strip (thesis §3.7: the gaps and overlaps that iso-distance spirals leave where their
     contours meet or bunch up; the width is set through the extrusion, as the thesis compensates
@@ -905,9 +969,11 @@ def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
     tile the layer instead of overlapping by the spacing error. Beads stay within
     ``_BEAD_RANGE`` widths and never narrower than ``min_bead`` (the local layer thickness: a bead
     is at least as wide as it is high). A pass end also owns what lies ahead of it and is
-    lengthened until its round end reaches that far. Returns the fitted pieces and their
-    per-vertex bead widths (mm). ``samples`` (points, normals) of :func:`surface_samples` may be
-    passed in when several fits share one surface.
+    lengthened until its round end reaches that far. Where the floor makes a bead wider than its
+    strip and one side of the strip is the layer's edge, the excess goes over that edge instead of
+    over the neighbour. Returns the fitted pieces and their per-vertex bead widths (mm).
+    ``samples`` (points, normals, edge mask) of :func:`surface_samples` may be passed in when
+    several fits share one surface.
     """
     fine = [resample(p, _FIT_STEP * width) for p in pieces]
     fine = [p for p in fine if len(p) >= 2]
@@ -917,13 +983,13 @@ def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
     return _fit_owned(surface, samples, _Owners(samples[0], fine), width, min_bead)
 
 
-def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray], owners: _Owners, width: float,
+def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray, np.ndarray], owners: _Owners, width: float,
                min_bead: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """:func:`fit_beads` of the passes ``owners`` holds (already sampled every ``_FIT_STEP``
     widths, with the samples' nearest points); unfitted, one width, without any surface."""
     if not owners.fine or surface.area <= 0:
         return owners.fine, [np.full(len(p), width) for p in owners.fine]
-    return _fit_strips(samples[0], samples[1], owners.fine, width, min_bead, owners.j)
+    return _fit_strips(samples[0], samples[1], owners.fine, width, min_bead, owners.j, samples[2])
 
 
 class _Owners:
@@ -943,17 +1009,38 @@ class _Owners:
             self.d[better], self.j[better] = d[better], sum(len(p) for p in self.fine) + j[better]
         self.fine = self.fine + list(fine)
 
-    def keep(self, indices: list[int]) -> None:
+    def kept(self, indices: list[int]) -> "_Owners":
+        """The owners once only the passes ``indices`` remain (this one unchanged)."""
         counts = np.array([len(p) for p in self.fine], np.int64)
         start = np.cumsum(counts) - counts
         renumber = np.full(int(counts.sum()), -1, np.int64)
-        kept = counts[indices]
-        renumber[np.concatenate([np.arange(start[i], start[i] + counts[i]) for i in indices])] = np.arange(kept.sum())
-        self.fine = [self.fine[i] for i in indices]
-        self.j = renumber[self.j]
-        orphan = np.nonzero(self.j < 0)[0]
+        renumber[np.concatenate([np.arange(start[i], start[i] + counts[i]) for i in indices])] = np.arange(counts[indices].sum())
+        out = _Owners(self.x, [])
+        out.fine, out.d, out.j = [self.fine[i] for i in indices], self.d.copy(), renumber[self.j]
+        orphan = np.nonzero(out.j < 0)[0]
         if len(orphan):
-            self.d[orphan], self.j[orphan] = cKDTree(np.vstack(self.fine)).query(self.x[orphan], workers=-1)
+            out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=-1)
+        return out
+
+
+def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> int:
+    """How many of the points ``x`` are open (farther than ``_GAP - 0.5`` widths beyond every
+    bead, as :func:`gap_passes` has it) or under the beads of two pieces or more (``widths``: the
+    pieces' vertex bead widths; sampled every ``_FIT_STEP`` widths, as the fits' lengthened ends
+    are not)."""
+    if not pieces:
+        return len(x)
+    dense = [resample(np.c_[p, b], _FIT_STEP * width) for p, b in zip(pieces, widths)]
+    label = np.repeat(np.arange(len(pieces)), [len(q) for q in dense])
+    dense = np.vstack(dense)
+    pts, half = dense[:, :3], 0.5 * dense[:, 3]
+    tree = cKDTree(pts)
+    d, j = tree.query(x, workers=-1)
+    near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="coo_matrix")
+    inside = near.data <= half[near.col]
+    beads = np.bincount(np.unique(near.row[inside] * len(pieces) + label[near.col[inside]]) // len(pieces),
+                        minlength=len(x))
+    return int(np.sum((d > half[j] + (_GAP - 0.5) * width) | (beads > 1)))
 
 
 def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
@@ -967,10 +1054,11 @@ def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray, np.ndarray]:
+def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Points of ``surface`` on a barycentric lattice of each triangle, about one per
     ``_FIT_SAMPLE`` w² (even, unlike random samples: no voids to under-estimate a strip by), and
-    on its boundary every ``_FIT_STEP`` widths, with the normals of their triangles."""
+    on its boundary every ``_FIT_STEP`` widths, with the normals of their triangles and a mask
+    of the boundary ones."""
     tri = surface.triangles
     order = np.maximum(np.ceil(np.sqrt(2.0 * surface.area_faces / (_FIT_SAMPLE * width**2))), 1).astype(np.int64)
     points, normals = [], []
@@ -988,15 +1076,18 @@ def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray,
         u = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / k[e]
         points.append(a[e] + u[:, None] * (b[e] - a[e]))
         normals.append(surface.face_normals[surface.edges_face[edges][e]])
-    return np.vstack(points), np.vstack(normals)
+    points = np.vstack(points)
+    edge = np.zeros(len(points), bool)
+    edge[len(points) - (int(k.sum()) if len(edges) else 0):] = True
+    return points, np.vstack(normals), edge
 
 
 def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: float,
                 min_bead: Callable[[np.ndarray], np.ndarray] | None,
-                j: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+                j: np.ndarray, edge: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """:func:`fit_beads` on passes sampled every ``_FIT_STEP`` widths and surface samples ``x``
-    (triangle normals ``xn``; ``j`` the nearest pass point of each, :class:`_Owners`): the
-    shifted passes and their beads."""
+    (triangle normals ``xn``; ``j`` the nearest pass point of each, :class:`_Owners`; ``edge``
+    the samples on the layer's boundary): the shifted passes and their beads."""
     counts = np.array([len(p) for p in fine])
     pts = np.vstack(fine)
     n = len(pts)
@@ -1037,7 +1128,11 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     if min_bead is not None:
         floor = np.clip(min_bead(pts), floor, _BEAD_RANGE[1] * width)
     bead = np.clip(extent.sum(axis=0), floor, _BEAD_RANGE[1] * width)
-    shift = np.clip(0.5 * (extent[0] - extent[1]), -0.5 * width, 0.5 * width)
+    # a bead wider than its strip (the floor) spills over the layer's edge where it has one
+    spill = np.stack([_window(np.bincount(j[s & edge], minlength=n).astype(np.float64), lo, hi, _FIT_HALF, "max") > 0
+                      for s in (left, ~left)])
+    excess = np.maximum(bead - extent.sum(axis=0), 0.0)
+    shift = np.clip(0.5 * (extent[0] - extent[1]) + 0.5 * excess * (spill[0].astype(float) - spill[1]), -0.5 * width, 0.5 * width)
     pts = pts + shift[:, None] * side
     grow = np.maximum(reach - 0.5 * bead, 0.0)
     pts[first] -= grow[first, None] * tan[first]
@@ -1065,13 +1160,14 @@ def _order_pieces(pieces: list[np.ndarray], widths: list[np.ndarray],
     return ordered, ordered_w
 
 
-def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0) -> np.ndarray:
+def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0, turn_weight: float = 0.0) -> np.ndarray:
     """Uniform re-sampling at spacing ≤ ``step`` (thesis §3.5.2: 1 mm) keeping sharp corners.
 
     Columns after the first three (x, y, z) are per-vertex values interpolated along the way.
     With ``value_weight`` > 0 the spacing is uniform in ``√(ds² + (value_weight·dv)²)`` instead of
     the arclength ``ds``, so where a value (a bead width) changes, samples come closer and its
-    profile survives the linear interpolation between them."""
+    profile survives the linear interpolation between them. ``turn_weight`` adds that much length
+    per radian the path turns (below the kept corners), so bends keep their samples."""
     p = np.asarray(polyline, np.float64)
     seg = np.linalg.norm(np.diff(p[:, :3], axis=0), axis=1)
     p = p[np.r_[True, seg > 1e-9]]
@@ -1081,7 +1177,9 @@ def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0) -> np
     u = d / np.linalg.norm(d, axis=1, keepdims=True)
     turn = np.arccos(np.clip(np.einsum("ij,ij->i", u[:-1], u[1:]), -1, 1))
     keep = np.r_[0, np.nonzero(turn > _CORNER)[0] + 1, len(p) - 1]
-    cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.c_[d, value_weight * np.diff(p[:, 3:], axis=0)], axis=1))]
+    bend = np.r_[0.0, np.where(turn > _CORNER, 0.0, turn), 0.0]
+    cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.c_[d, value_weight * np.diff(p[:, 3:], axis=0)], axis=1)
+                               + turn_weight * 0.5 * (bend[:-1] + bend[1:]))]
     # every run between kept corners in n equal steps (the corners themselves are knots of cum)
     start, span = cum[keep[:-1]], cum[keep[1:]] - cum[keep[:-1]]
     n = np.maximum(np.ceil(span / step - 1e-9), 1).astype(np.int64)
@@ -1200,7 +1298,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
             return vertex_thickness[vertex_tree.query(points)[1]]
 
         paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
-        samples = [resample(np.c_[p, b], settings.step, _WIDTH_WEIGHT) for p, b in zip(paths.pieces, paths.widths)]
+        samples = [resample(np.c_[p, b], settings.step, _WIDTH_WEIGHT, _TURN_WEIGHT * w) for p, b in zip(paths.pieces, paths.widths)]
         samples = [s for s in samples if len(s) >= 2]
         t1 = perf_counter()
         row = {"layer": index, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
