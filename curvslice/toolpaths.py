@@ -827,9 +827,8 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
     Contour arcs never cross each other; the links between them -- from ring to ring, into a
     spliced child spiral -- can, where the cuts of neighbouring rings drift apart (Zhao et al.
     2016 align them on one cut line) or once :func:`fit_beads` has moved the passes sideways.
-    Two segments cross when they come within ``0.1·width`` of each other at inner points, more
-    than 15° apart (their closest points are where their projections along the common normal
-    cross; fitted passes are shifted in the tangent plane, off a stepped layer by up to ~0.05 mm). Crossings whose stretches do not overlap are undone in the same round.
+    Two segments cross when they come within ``0.01·width`` of each other at inner points, more
+    than 15° apart. Crossings whose stretches do not overlap are undone in the same round.
     """
     order = np.arange(len(piece))
     for _ in range(rounds):
@@ -860,7 +859,7 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
             t = np.clip((uu * vw - uv * uw) / den, 0, 1)
         gap = np.linalg.norm(w0 + s[:, None] * u - t[:, None] * v, axis=1)
         sin = np.sqrt(np.maximum(den, 0)) / np.maximum(np.sqrt(uu * vv), 1e-300)
-        hit = (gap < 0.1 * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(np.radians(15)))
+        hit = (gap < 0.01 * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(np.radians(15)))
         if not hit.any():
             return order
         last = -2
