@@ -628,7 +628,8 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     Regions narrower than ``2·_THIN`` widths get one ridge pass of their own width
     (:func:`thin_passes`). Every pass is then freed of self-crossings (:func:`uncross`) and its
     bead fitted to the strip of surface it covers (:func:`fit_beads`; ``min_bead(points)`` gives
-    the narrowest bead there, the local layer thickness)."""
+    the narrowest bead there, the local layer thickness), and widened over the slivers the fit
+    leaves past tips and corners (:func:`fill_slivers`)."""
     surface = clean_surface(mesh)
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, _BRIDGE * np.pi * width)
     if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > 0.5 * width:
@@ -690,6 +691,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
             kept = owners.kept(needed)
             refit = _fit_owned(surface, samples, kept, width, min_bead)
         owners, (pieces, widths) = kept, refit
+    widths = fill_slivers(samples[0], pieces, widths, width)
     out.gap_passes = int(is_gap[needed].sum())
     out.splices, out.failed_splices = builder.splices, builder.failed
     orders = [uncross(p, width) for p in pieces]
@@ -1040,6 +1042,47 @@ def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], w
     beads = np.bincount(np.unique(near.row[inside] * len(pieces) + label[near.col[inside]]) // len(pieces),
                         minlength=len(x))
     return int(np.sum((d > half[j] + (_GAP - 0.5) * width) | (beads > 1)))
+
+
+def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> list[np.ndarray]:
+    """Bead widths (one array per piece) widened over the slivers the fit leaves: surface samples
+    ``x`` at most ``_GAP - 0.5`` widths beyond every bead (farther is open, for
+    :func:`gap_passes`) -- past a tip or a corner, where the fitted extent is a running mean. The
+    nearest pass point's bead grows to reach them, short of any sample under another pass's bead
+    (another piece, or the same piece more than two beads away along it: a spiral's next ring),
+    and within the widest bead (``_BEAD_RANGE``)."""
+    if not pieces or not len(x):
+        return widths
+    pts, half = np.vstack(pieces), 0.5 * np.concatenate(widths)
+    label = np.repeat(np.arange(len(pieces)), [len(p) for p in pieces])
+    key = np.concatenate([np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))] for p in pieces])
+    tree = cKDTree(pts)
+    d, j = tree.query(x, workers=-1)
+    sliver = (d > half[j]) & (d <= half[j] + (_GAP - 0.5) * width)
+    if not sliver.any():
+        return widths
+    # the pass points whose beads cover each sample, grouped by sample
+    near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="coo_matrix")
+    inside = near.data <= half[near.col]
+    order = np.argsort(near.row[inside], kind="stable")
+    by_sample, coverer = near.row[inside][order], near.col[inside][order]
+    bounds = np.searchsorted(by_sample, np.arange(len(x) + 1))
+    owners = np.unique(j[sliver])
+    want = np.zeros(len(pts))
+    np.maximum.at(want, j[sliver], d[sliver])
+    # every (owner, sample within its wanted reach, pass point covering that sample)
+    pairs = cKDTree(pts[owners]).sparse_distance_matrix(cKDTree(x), float(want.max()), output_type="coo_matrix")
+    owner, sample, dist = owners[pairs.row], pairs.col, pairs.data
+    n = bounds[sample + 1] - bounds[sample]
+    pair = np.repeat(np.arange(len(sample)), n)
+    c = coverer[np.repeat(bounds[sample], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
+    other = (label[c] != label[owner[pair]]) | (np.abs(key[c] - key[owner[pair]]) > 2.0 * np.maximum(width, 2.0 * half[c]))
+    limit = np.full(len(pts), np.inf)
+    np.minimum.at(limit, owner[pair[other]], dist[pair[other]])
+    grown = half.copy()
+    grown[owners] = np.clip(np.minimum(want[owners], limit[owners] - _FIT_MARGIN * width), half[owners],
+                            0.5 * _BEAD_RANGE[1] * width)
+    return np.split(2.0 * grown, np.cumsum([len(p) for p in pieces])[:-1])
 
 
 def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:

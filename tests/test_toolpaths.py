@@ -519,3 +519,22 @@ def cKDTree_distance(a: np.ndarray, b: np.ndarray) -> float:
     """Largest distance from a point of ``a`` to the nearest point of ``b``."""
     from scipy.spatial import cKDTree
     return float(cKDTree(b).query(a)[0].max())
+
+
+def test_fill_slivers_reaches_past_tips_without_new_overlap(monkeypatch):
+    """A diamond layer 8 × 4 mm: the fitted beads' running mean falls short of its tips; widened
+    over those slivers (short of any sample under another bead, the spiral's next ring included),
+    coverage rises (measured 97.6 -> 98.6 %) and overlap barely moves (3.55 -> 3.82 %)."""
+    width = 1.0
+    mesh = polygon_mesh(sg.Polygon([(0, 2), (4, 0), (8, 2), (4, 4)]), 0.2)
+
+    def measure():
+        result = layer_paths(mesh, width, min_bead=lambda p: np.full(len(p), 0.8 * width))
+        pos = np.vstack(result.pieces)
+        ids = np.repeat(np.arange(len(result.pieces)), [len(p) for p in result.pieces])
+        return layer_cover(mesh, pos, ids, width, seed=1, bead=np.concatenate(result.widths))
+    coverage, overlap = measure()
+    monkeypatch.setattr("curvslice.toolpaths.fill_slivers", lambda x, pieces, widths, w: widths)
+    plain_coverage, plain_overlap = measure()
+    assert coverage >= plain_coverage + 0.005
+    assert overlap <= plain_overlap + 0.005
