@@ -1048,9 +1048,9 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     """Bead widths (one array per piece) widened over the slivers the fit leaves: surface samples
     ``x`` at most ``_GAP - 0.5`` widths beyond every bead (farther is open, for
     :func:`gap_passes`) -- past a tip or a corner, where the fitted extent is a running mean. The
-    nearest pass point's bead grows to reach them, short of any sample under another pass's bead
-    (another piece, or the same piece more than two beads away along it: a spiral's next ring),
-    and within the widest bead (``_BEAD_RANGE``)."""
+    nearest pass point's bead grows to reach them, short of the bead of any other pass (another
+    piece, or the same piece more than two beads away along it: a spiral's next ring), and within
+    the widest bead (``_BEAD_RANGE``)."""
     if not pieces or not len(x):
         return widths
     pts, half = np.vstack(pieces), 0.5 * np.concatenate(widths)
@@ -1061,24 +1061,16 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     sliver = (d > half[j]) & (d <= half[j] + (_GAP - 0.5) * width)
     if not sliver.any():
         return widths
-    # the pass points whose beads cover each sample, grouped by sample
-    near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="coo_matrix")
-    inside = near.data <= half[near.col]
-    order = np.argsort(near.row[inside], kind="stable")
-    by_sample, coverer = near.row[inside][order], near.col[inside][order]
-    bounds = np.searchsorted(by_sample, np.arange(len(x) + 1))
     owners = np.unique(j[sliver])
     want = np.zeros(len(pts))
     np.maximum.at(want, j[sliver], d[sliver])
-    # every (owner, sample within its wanted reach, pass point covering that sample)
-    pairs = cKDTree(pts[owners]).sparse_distance_matrix(cKDTree(x), float(want.max()), output_type="coo_matrix")
-    owner, sample, dist = owners[pairs.row], pairs.col, pairs.data
-    n = bounds[sample + 1] - bounds[sample]
-    pair = np.repeat(np.arange(len(sample)), n)
-    c = coverer[np.repeat(bounds[sample], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)]
-    other = (label[c] != label[owner[pair]]) | (np.abs(key[c] - key[owner[pair]]) > 2.0 * np.maximum(width, 2.0 * half[c]))
+    # the edge of the nearest bead of another pass (another piece, or the same one more than two
+    # beads along it) bounds the growth
+    pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(want.max() + half.max()), output_type="coo_matrix")
+    owner, other = owners[pairs.row], pairs.col
+    far = (label[other] != label[owner]) | (np.abs(key[other] - key[owner]) > 2.0 * np.maximum(width, 2.0 * half[other]))
     limit = np.full(len(pts), np.inf)
-    np.minimum.at(limit, owner[pair[other]], dist[pair[other]])
+    np.minimum.at(limit, owner[far], pairs.data[far] - half[other[far]])
     grown = half.copy()
     grown[owners] = np.clip(np.minimum(want[owners], limit[owners] - _FIT_MARGIN * width), half[owners],
                             0.5 * _BEAD_RANGE[1] * width)
