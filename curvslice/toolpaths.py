@@ -89,7 +89,7 @@ _WIDTH_WEIGHT = 5.0
 _FIT_MARGIN = 0.01
 #: Re-sampling of the fitted passes: a radian of turn counts as this many widths of path length,
 #: so a bend keeps its samples and the 1 mm chords do not cut the corners of wavy passes.
-_TURN_WEIGHT = 1.0
+_TURN_WEIGHT = 0.5
 #: Cut of a Fermat spiral (thesis §3.5.1; Zhao et al. 2016): each ring of a chain of three or more
 #: opens over ``length / _CUT_SHARE``, between ``_CUT`` widths; the links in and out of the
 #: spiral cross the rings there, ``(g/2)·2w/√(4w² + g²)`` apart (0.71 w at g = 2 w, 0.83 w at 3 w).
@@ -98,6 +98,7 @@ _CUT_SHARE = 6.0
 #: :func:`contour_gap` within this of 1 is the measure's own error (a flat square 0.995, a flat
 #: disc 1.007): the distance is left as it is.
 _GAP_NOISE = 0.01
+_GAP_LEVELS = 5
 
 
 @dataclass
@@ -266,7 +267,8 @@ def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
 def contour_gap(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, width: float) -> float:
     """Median 3D gap between the contours of ``dist`` at adjacent levels ``width`` apart, per
     ``width`` (from each contour point, sampled every 0.1 widths, to the nearest of the level
-    below); 1 when there are fewer than two levels.
+    below; the outermost ``_GAP_LEVELS`` levels, which hold most of the passes); 1 when there are
+    fewer than two levels.
 
     The heat-method distance runs along the layer's facets: on a layer dual-contoured from a
     voxel field the facets step with the voxels, and the distance grows faster than the straight
@@ -274,7 +276,7 @@ def contour_gap(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, width
     the distance by this ratio spaces the passes one width apart in 3D (thesis §3.5.1: passes a
     path width apart), instead of laying the beads of such a layer over each other."""
     finite = dist[np.isfinite(dist)]
-    levels = np.arange(_FIRST * width, float(finite.max()) if len(finite) else 0.0, width)
+    levels = np.arange(_FIRST * width, float(finite.max()) if len(finite) else 0.0, width)[:_GAP_LEVELS]
     if len(levels) < 2:
         return 1.0
     rings, _ = contour_rings(vertices, faces, dist, levels)
