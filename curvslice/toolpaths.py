@@ -2,22 +2,25 @@
 
 Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9):
 
-1. the geodesic distance ``d`` from the layer boundary (:mod:`curvslice.geodesic`);
+1. the geodesic distance ``d`` from the layer boundary (:mod:`curvslice.geodesic`), scaled so
+   that its contours lie a width apart in 3D (:func:`contour_gap`);
 2. iso-contours ("rings") of ``d`` at ``(k + 0.45)·w`` for path width ``w``, extracted on the mesh
    as closed polylines with the higher side on their left; every band between consecutive levels
    is split into connected *band components*, which gives the exact contour tree: a ring bounds
    one component below and one above;
 3. connected Fermat spirals (Zhao et al., SIGGRAPH 2016, the thesis's ref. [2]): a chain of
-   nested rings is cut near a common cut line and rerouted into one in-and-out spiral (inwards
+   nested rings is cut (2-3 widths) near a common cut line and rerouted into one in-and-out spiral (inwards
    on rings 0, 2, 4, ..., outwards on 1, 3, 5, ..., both ends next to each other on the outer
    ring); where the contour tree branches, each child spiral is spliced into the ring that
    hosts it through a gap, so a connected region is one continuous piece unless a splice has no
    room (then the child becomes its own piece, counted as a jump);
 4. every pass centred in the strip of surface nearest to it, with a bead as wide as that strip
    (:func:`fit_beads`: the passes tile the layer despite uneven spacing), gap passes where the
-   widest beads still leave surface open, redundant slivers dropped, self-crossings removed;
-5. re-sampling at ``step`` (1 mm in the thesis, §3.5.2), keeping sharp corners and the bead
-   width profile;
+   widest beads still leave surface open, redundant slivers dropped (:func:`needed_pieces`),
+   beads widened over what the fit leaves past tips and corners (:func:`fill_slivers`),
+   self-crossings removed;
+5. re-sampling at ``step`` (1 mm in the thesis, §3.5.2), keeping sharp corners, bends and the
+   bead width profile;
 6. extrusion per segment from length × bead width × local layer thickness (volume
    conservation, :func:`curvslice.flow.filament_length`).
 """
