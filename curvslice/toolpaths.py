@@ -938,6 +938,7 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     bounds = np.searchsorted(piece, np.arange(len(pieces) + 1))
     count = np.bincount(sample, minlength=len(near))
     kept = np.ones(len(pieces), bool)
+    row_bounds = np.searchsorted(row, np.arange(len(near) + 1))  # each sample's block of (piece, distance)
     for k in short:
         if len(keep) == 1:
             break
@@ -945,8 +946,10 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
         alone = mine[count[mine] == 1]
         # what the nearest other kept pass takes over once refitted: its bead grows towards the
         # sample, up to the widest bead and by a shift of at most half a width
-        other = np.isin(row, alone) & (piece_of != k) & kept[piece_of]
-        o_row, o_gap, o_half = row[other], gap_of[other], half_of[other]
+        n = row_bounds[alone + 1] - row_bounds[alone]
+        block = np.repeat(row_bounds[alone], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+        block = block[(piece_of[block] != k) & kept[piece_of[block]]]
+        o_row, o_gap, o_half = row[block], gap_of[block], half_of[block]
         nearest = np.r_[True, o_row[1:] != o_row[:-1]] if len(o_row) else np.zeros(0, bool)
         taken = (o_gap + o_half <= widest) & (o_gap <= width + o_half) & take_over
         only = len(alone) - int(np.sum(taken[nearest]))
