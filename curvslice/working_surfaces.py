@@ -6,9 +6,9 @@ For every layer l (print order) the surface S_l is built in three steps:
 1. **Continued field.** G is an integer per voxel of H̄ (0 = empty or missed). Missed voxels get the
    layer the growth would have given them next (1 + the least G of their 18 AM-stable neighbours,
    Definition 1, Alg. 1's rule); two rings of empty voxels around H̄ get a first-order extrapolation
-   of G from their neighbours; the platform below z = 0 is layer 0. Every isosurface then reaches
-   past H̄ ⊇ H, so its untrimmed boundary lies outside H (§3.4.5: "as long as ∂S* is always outside
-   H"). On an edge leaving H̄ a crossing stays in the empty voxel's half, outside H.
+   of G from their neighbours; the platform below z = 0 is layer 0. Both rings are cell corners, so
+   an isosurface cut off by the domain ends in cells no voxel of H̄ touches: its untrimmed boundary
+   lies outside H̄ ⊇ H (§3.4.5: "as long as ∂S* is always outside H"). On an edge leaving H̄ a crossing stays in the empty voxel's half, outside H.
 2. **Dual contouring** (Ju et al. 2002, the thesis's [52]) at the isovalue of layer l on its narrow
    band: the grid edges whose end values bracket the isovalue, except that a jump between grown
    voxels (G = a → b ≥ a + 2, common in governed growth) carries only the layers owning its ends —
@@ -184,8 +184,11 @@ def continue_field(growing: np.ndarray, occupied: np.ndarray, origin: np.ndarray
         target &= ~new
     g[below] = 0.0
     w = float(voxel_size)
-    gradient = np.stack(np.gradient(g, w), axis=-1)
-    domain = near1 & np.isfinite(g)
+    gradient = _one_sided_gradient(g) / w
+    # Both rings are cell corners: a surface cut off by the domain ends in a cell with a corner
+    # two voxels from H̄, i.e. in a cell no voxel of H̄ touches, so outside H (one ring let the
+    # top layer of the tee end at dual vertices 0.2 w inside H).
+    domain = near2 & np.isfinite(g)
     domain[:, :, PAD - 1] = domain[:, :, PAD]  # the platform row under the model
     domain[:, :, :PAD - 1] = False
     return ContinuedField(values=g, gradient=gradient, domain=domain, solid_nodes=occ, grown=grown,
