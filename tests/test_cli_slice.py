@@ -87,8 +87,13 @@ def test_voxel_size_needing_too_much_memory_is_refused(tmp_path):
 
 
 def test_verify_fails_on_a_tampered_field(tmp_path):
+    """Both sides: the untampered slice (all stages to tool-paths) passes every check, the same
+    folder with one voxel of G moved to layer 2 fails."""
     out = tmp_path / "t"
-    assert main(["slice", str(MODELS / "tee.stl"), "--voxel", "2", "--out", str(out), "--quiet"]) == 0
+    assert main(["slice", str(MODELS / "tee.stl"), "--voxel", "2", "--stages", "toolpaths", "--out", str(out),
+                 "--quiet"]) == 0
+    r = _run_cli("verify", str(out), cwd=tmp_path)
+    assert r.returncode == 0 and "FAIL" not in r.stdout, r.stdout
     z = dict(np.load(out / "field.npz"))
     g = z["growing"]
     g[tuple(np.argwhere(g == g.max())[0])] = 2
