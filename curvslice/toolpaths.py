@@ -46,10 +46,6 @@ from curvslice.geodesic import boundary_distance, edge_keys
 
 #: Rings shorter than this many path widths are printed as one short bead along their diameter.
 _DOT_RING = 4.0
-#: A lone ring whose inside is narrower than this many widths (:attr:`Ring.breadth`) is printed as
-#: one pass along its centre line: its region, ``2·_FIRST`` widths wider, takes one bead of at most
-#: ``_BEAD_RANGE[1]`` widths, while its two sides would lie closer than a bead.
-_THIN_RING = 0.6
 #: A mesh vertex more than ``_GAP - 0.5`` path widths beyond the edge of every bead is open (a
 #: gap): with beads of one width, this many widths from every path; hairlines do not count.
 _GAP = 0.65
@@ -106,12 +102,14 @@ _GAP_LEVELS = 5
 
 @dataclass
 class Ring:
-    """A closed iso-contour: points (k,3) with the higher distance on the left, its band comps."""
+    """A closed iso-contour: points (k,3) with the higher distance on the left, its band comps and
+    the largest distance on its higher side (``top``, where known)."""
 
     level: float
     points: np.ndarray
     below: int
     above: int
+    top: float = np.inf
 
     @property
     def length(self) -> float:
@@ -129,6 +127,16 @@ class Ring:
         p = self.points - self.points.mean(axis=0)
         area = 0.5 * np.linalg.norm(np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0))
         return 2.0 * area / max(self.length, 1e-300)
+
+    @property
+    def rise(self) -> float:
+        """How far the inside reaches from the ring: the distance's rise above it (``top − level``)
+        on a round loop (isoperimetric ratio 4π·area / length² ≥ ½), half the mean breadth on an
+        elongated one, whose rise may come from one bulge."""
+        rise = self.top - self.level
+        if 2.0 * np.pi * self.breadth / max(self.length, 1e-300) >= 0.5:  # 4π·area/length²
+            return rise
+        return min(rise, 0.5 * self.breadth)
 
 
 @dataclass
@@ -303,7 +311,8 @@ def prune_islands(rings: list[Ring], comp_top: np.ndarray, width: float) -> list
 
 
 def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels: np.ndarray,
-               rings: list[Ring], bands: Bands, width: float) -> tuple[list[Ring], list[np.ndarray]]:
+               rings: list[Ring], bands: Bands, width: float,
+               floor: float = _BEAD_MIN) -> tuple[list[Ring], list[np.ndarray]]:
     """One more contour in each peak that the regular rings leave uncovered, and centre lines of
     slivers.
 
@@ -312,12 +321,20 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
     peak rises more than ``0.15·width`` beyond, a contour at the mid level ``(covered + top) / 2``
     covers the rest, so peaks and regions thinner than a bead are printed too. A region less than
     half a bead wide (peak below ``width/4``) gets one pass along its centre line instead of a loop.
+
+    Where that contour is a thin loop (a ridge, :func:`thin_rise`), its centre line is printed
+    instead, if there is room for it: the ring's beads and the centre bead each at least ``floor``
+    widths, i.e. the peak ``1.5·floor − 0.5`` widths above the ring; else the ring's beads widen
+    over the ridge (:func:`fit_beads`). A dot (a ring shorter than ``_DOT_RING`` widths) inside an
+    inner ring is left out where that ring's widest beads reach the peak: the spiral would turn on
+    it, and its links in and out would lie side by side.
     """
     bounding: dict[int, list[Ring]] = {}
     for r in rings:
         bounding.setdefault(r.below, []).append(r)
         bounding.setdefault(r.above, []).append(r)
     low = np.r_[-np.inf, levels]
+    reach = (_BEAD_RANGE[1] - 0.5) * width  # inwards from a ring, by its widest bead
     extra: list[Ring] = []
     lines: list[np.ndarray] = []
     next_comp = len(bands.top)
@@ -335,10 +352,50 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
             lines.append(_centre_line(vertices[np.unique(sub_faces)], width))
             continue
         found, sub = contour_rings(vertices, sub_faces, dist, np.array([level]))
+        rise = bands.top[c] - low[b]
         for r in found:
-            extra.append(Ring(r.level, r.points, c, next_comp + r.above))
+            dot = r.length < _DOT_RING * width
+            r.top = float(bands.top[c])
+            if not dot and r.rise < thin_rise(floor, width):
+                if not around or rise >= (1.5 * floor - 0.5) * width:
+                    lines.append(_loop_centre_line(r.points))
+            elif around and dot and b >= 2 and rise <= reach:
+                continue
+            else:
+                extra.append(Ring(r.level, r.points, c, next_comp + r.above, float(bands.top[c])))
         next_comp += len(sub.top)
     return extra, lines
+
+
+def thin_rise(floor: float, width: float) -> float:
+    """Rise of the distance above a ring (``top − level``) below which the ring is a thin loop,
+    printed as one pass down its middle.
+
+    Each side of a loop owns half a width outside it and the rise ``r`` inside (half the breadth
+    of a strip), a bead of ``w/2 + r``; no bead is narrower than ``floor`` (the layer thickness, in
+    widths), so below ``r = (floor − ½)·w`` the sides' beads overlap, while one centre pass spans
+    ``2r + w`` ≤ ``2·floor·w`` (0.3 w at the default thickness 0.8 w: a strip 0.6 w broad)."""
+    return max(floor - 0.5, 0.0) * width
+
+
+def _loop_centre_line(points: np.ndarray) -> np.ndarray:
+    """Centre line of a thin closed loop: its two sides between the loop's ends (the farthest
+    pair of its points), paired by their share of arclength and averaged; curved loops keep their
+    course (a main-axis projection would fold a U onto itself)."""
+    a = int(np.argmax(np.linalg.norm(points - points[0], axis=1)))
+    b = int(np.argmax(np.linalg.norm(points - points[a], axis=1)))
+    loop = np.roll(points, -a, axis=0)
+    b = (b - a) % len(points)
+    sides = [loop[:b + 1], np.vstack([loop[b:], loop[:1]])[::-1]]
+    if b < 1 or b >= len(points) - 1:
+        return points[[0, a]] if a else points[:2]
+    shares = []
+    for side in sides:
+        cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(side, axis=0), axis=1))]
+        shares.append(cum / max(cum[-1], 1e-300))
+    t = np.unique(np.r_[shares[0], shares[1]])
+    halves = [np.column_stack([np.interp(t, sh, side[:, i]) for i in range(3)]) for sh, side in zip(shares, sides)]
+    return 0.5 * (halves[0] + halves[1])
 
 
 def _centre_line(points: np.ndarray, width: float) -> np.ndarray:
@@ -445,9 +502,10 @@ def _contour_tree(rings: list[Ring], root: int) -> tuple[_Tree, list[int]]:
 class _Builder:
     """Builds one connected-Fermat-spiral piece per subtree, splicing children where they fit."""
 
-    def __init__(self, tree: _Tree, width: float):
+    def __init__(self, tree: _Tree, width: float, floor: float = _BEAD_MIN):
         self.tree = tree
         self.w = width
+        self.thin = thin_rise(floor, width)
         self.gap = _CUT[0] * width
         self.extra_pieces: list[np.ndarray] = []
         self.splices = 0
@@ -464,8 +522,18 @@ class _Builder:
 
     def piece(self, ring_id: int, anchor: np.ndarray, host_tangent: np.ndarray | None,
               siblings: list[int] = ()) -> np.ndarray:
-        """Fermat spiral of the chain starting at ``ring_id``, cut next to ``anchor``."""
+        """Fermat spiral of the chain starting at ``ring_id``, cut next to ``anchor``.
+
+        The innermost ring of a chain thinner than :func:`thin_rise` (and that
+        hosts no branches) is not part of the spiral: its two sides would be laid over each other,
+        so it becomes one pass down its middle, a piece of its own."""
         chain = self.chain_from(ring_id)
+        inner = self.tree.rings[chain[-1]]
+        inner_comp = self.tree.child_comp.get(chain[-1])
+        if (len(chain) > 1 and inner.length >= _DOT_RING * self.w and inner.rise < self.thin
+                and len(self.tree.child_rings.get(inner_comp, [])) <= 1):
+            self.extra_pieces.append(_loop_centre_line(inner.points))
+            chain = chain[:-1]
         rings = [self.tree.rings[i] for i in chain]
         cuts: list[float] = []
         point = anchor
@@ -487,10 +555,10 @@ class _Builder:
             hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
         if siblings:
             hosted.setdefault(0, []).extend(siblings)
-        if len(rings) == 1 and not hosted and rings[0].breadth < _THIN_RING * self.w:
+        if len(rings) == 1 and not hosted and rings[0].rise < self.thin:
             # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
             # as the region (fit_beads), instead of two sides printed over each other
-            return _centre_line(rings[0].points, self.w)
+            return _loop_centre_line(rings[0].points)
         arcs: list[np.ndarray] = []
         n = len(rings)
         order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
@@ -652,12 +720,17 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     levels = np.arange(_FIRST * width, top, width)
     rings, bands = contour_rings(v, f, dist, levels)
     rings = prune_islands(rings, bands.top, width)
-    extra, lines = peak_rings(v, f, dist, levels, rings, bands, width)
+    for r in rings:
+        r.top = float(bands.top[r.above])
+    # the narrowest bead (fit_beads), in widths: the layer thickness (0.8 w at the default path width,
+    # voxel / 0.8 of §3.6, on layers a voxel thick)
+    floor = max(float(np.median(min_bead(v))) / width, _BEAD_MIN) if min_bead is not None else _BEAD_MIN
+    extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor)
     rings += extra
     out = LayerPaths(pieces=[], rings=len(rings), closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))
     remaining = set(range(len(rings)))
-    builder = _Builder(_Tree(rings, {}, {}), width)
+    builder = _Builder(_Tree(rings, {}, {}), width, floor)
     cursor = np.asarray(start, float) if start is not None else (rings[0].points[0] if rings else None)
     while remaining:
         # root: the band-0 component of the outermost ring nearest to the cursor
