@@ -514,7 +514,7 @@ def markdown(result: dict[str, object]) -> str:
     if not any(c["model"] in TABLE_3_1 for c in cases):
         lines.append("| (no model of Table 3.1 in this suite) | | | | |")
 
-    lines += ["", "## Beside the authors' C++ code on a 2-core machine (DESIGN.md)", "", f"{AUTHORS_MACHINE}. "
+    lines += ["", "## Beside the authors' C++ code on a 2-core machine (../shared/DESIGN.md)", "", f"{AUTHORS_MACHINE}. "
               "Its voxel counts include a one-voxel shell its voxelizer adds. 'written' = layers whose trimmed "
               "surface is non-empty. Ratio = ours / theirs.", "",
               "| case (theirs) | voxels theirs / ours | peeling s theirs / ours (ratio) | growing s theirs / ours (ratio) "

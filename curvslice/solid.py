@@ -57,6 +57,8 @@ def read_mesh(path: str | Path) -> trimesh.Trimesh:
         )
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
+    except ImportError:
+        raise  # a missing package is not a bad mesh: the CLI names the package to install
     except Exception as exc:  # trimesh raises many types for garbage input
         raise CurvsliceError(f"{path}: not a readable {path.suffix[1:].upper()} mesh ({exc})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
