@@ -1399,7 +1399,7 @@ def save_toolpaths(outdir: Path, tp: Toolpaths, settings: ToolpathSettings) -> N
     """Write ``toolpaths.npz`` (the stage contract) and the extended ``toolpaths.gcode``."""
     outdir = Path(outdir)
     np.savez_compressed(outdir / "toolpaths.npz", positions=tp.positions, normals=tp.normals, layer=tp.layer,
-                        path=tp.path, extrusion=tp.extrusion, thickness=tp.thickness, feed=tp.feed)
+                        path=tp.path, extrusion=tp.extrusion, thickness=tp.thickness, feed=tp.feed, bead=tp.bead)
     header = {k: (round(float(np.degrees(v)), 6) if k in ("max_angle", "max_tilt") else v)
               for k, v in asdict(settings).items()}
     header = {("max_angle_deg" if k == "max_angle" else "max_tilt_deg" if k == "max_tilt" else k): v
