@@ -378,6 +378,14 @@ STAGES: tuple[Stage, ...] = (
 STAGE_NAMES: tuple[str, ...] = tuple(s.name for s in STAGES)
 
 
+def stage(name: str) -> Stage:
+    """The registered stage called ``name`` (benchmarks time stages one by one through this)."""
+    for s in STAGES:
+        if s.name == name:
+            return s
+    raise CurvsliceError(f"unknown stage {name!r}; choose one of {', '.join(STAGE_NAMES)}")
+
+
 # ------------------------------------------------------------------------------------------- the slice
 
 
@@ -466,8 +474,7 @@ def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, u
     ``after(slice, tmp)`` may add files to the folder before it becomes final (the CLI's preview).
     """
     settings = settings or Settings()
-    if until not in STAGE_NAMES:
-        raise CurvsliceError(f"unknown stage {until!r}; choose one of {', '.join(STAGE_NAMES)}")
+    stage(until)  # an unknown name is an error before any work
     keys = stage_keys(model, settings)
     old = _reusable(resume, keys) if resume is not None else {}
     protect = () if isinstance(model, trimesh.Trimesh) else (Path(model),)
