@@ -46,7 +46,8 @@ def run_folder(folder: Path, width: float | None) -> None:
     settings = settings_of(folder)
     if width is not None:
         settings = settings.replace(path_width=width)
-    result = run(read_report(folder)["model"], settings, until="toolpaths", resume=folder, out=folder, force=True)
+    result = run(read_report(folder)["model"], settings, until="toolpaths", resume=folder, out=folder, force=True,
+                 redo="toolpaths")
     tp = result.toolpaths
     width = result.results["toolpaths"].settings.path_width
     dt = result.report["timings_s"]["toolpaths"]

@@ -465,18 +465,19 @@ def settings_of(folder: str | Path) -> Settings:
 
 def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, until: str = "toolpaths",
         out: str | Path | None = None, resume: str | Path | None = None, force: bool = False, quiet: bool = True,
-        after: Callable[[Slice, Path], None] | None = None) -> Slice:
+        after: Callable[[Slice, Path], None] | None = None, redo: str | None = None) -> Slice:
     """Run the stages up to and including ``until`` on ``model`` (a mesh file or a Trimesh).
 
     ``out``: write the output folder atomically (an existing one is replaced only with ``force``).
     ``resume``: a folder of an earlier run whose stages are reused while their keys match (their files
-    are copied, their results loaded); the first stage whose key differs and every later one run anew.
+    are copied, their results loaded); the first stage whose key differs and every later one run anew, and
+    so do stage ``redo`` and every later one (to time or re-check a stage whose inputs did not change).
     ``after(slice, tmp)`` may add files to the folder before it becomes final (the CLI's preview).
     """
     settings = settings or Settings()
     stage(until)  # an unknown name is an error before any work
     keys = stage_keys(model, settings)
-    old = _reusable(resume, keys) if resume is not None else {}
+    old = _reusable(resume, keys, redo) if resume is not None else {}
     protect = () if isinstance(model, trimesh.Trimesh) else (Path(model),)
     folder = atomic_folder(out, force=force, protect=protect) if out is not None else nullcontext(None)
     with folder as tmp:
@@ -490,14 +491,16 @@ def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, u
     return result
 
 
-def _reusable(resume: str | Path, keys: dict[str, str]) -> dict[str, Any]:
-    """The leading stages of folder ``resume`` whose keys equal ``keys``: name -> (folder, report section)."""
+def _reusable(resume: str | Path, keys: dict[str, str], redo: str | None = None) -> dict[str, Any]:
+    """The leading stages of folder ``resume`` before ``redo`` whose keys equal ``keys``: name -> (folder,
+    report section)."""
     folder = Path(resume)
     report = read_report(folder)
     done, old_keys = report.get("stages", []), report.get("stage_keys", {})
     reuse = {}
     for stage in STAGES:
-        if stage.name not in done or old_keys.get(stage.name) != keys[stage.name] or stage.load is None:
+        if stage.name == redo or stage.name not in done or old_keys.get(stage.name) != keys[stage.name] \
+                or stage.load is None:
             break
         reuse[stage.name] = (folder, report.get(stage.name, {}))
     return reuse
