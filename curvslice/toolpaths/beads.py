@@ -14,6 +14,7 @@ from curvslice.toolpaths.constants import (BEAD_RANGE, FIT_HALF, FIT_MARGIN, FIT
                                            REDUNDANT_LENGTH)
 from curvslice.toolpaths.passes import gap_passes
 from curvslice.toolpaths.resample import resample
+from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
 
 
 def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, passes: list[np.ndarray],
@@ -38,7 +39,7 @@ def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarra
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
         kept = owners.kept(needed)
         refit = _fit_owned(surface, samples, kept, width, min_bead)
-        label = np.repeat(np.arange(len(pieces)), [len(p) for p in pieces])
+        label = piece_labels(pieces)
         orphans = samples[0][~np.isin(label[owners.j], needed)]
         if _faults(orphans, *refit, width) - _faults(orphans, pieces, widths, width) > MINOR_SHARE * len(samples[0]):
             # a refitted bead fell short of what it was to take over (a corner, a pass end)
@@ -84,11 +85,12 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     if not short or len(pieces) < 2 or len(samples) == 0:
         return keep
     pts = np.vstack(pieces)
-    label = np.repeat(np.arange(len(pieces)), [len(p) for p in pieces])
+    label = piece_labels(pieces)
     half = 0.5 * np.concatenate(widths)
     # the samples under the short beads, and every piece whose bead covers each of them
-    stop = np.cumsum([len(p) for p in pieces])
-    own = np.concatenate([np.arange(stop[k] - len(pieces[k]), stop[k]) for k in short])
+    counts = np.array([len(p) for p in pieces])
+    stop = np.cumsum(counts)
+    own = concat_ranges(stop[short] - counts[short], counts[short])
     reach = float(half.max())
     short_tree = cKDTree(pts[own])
     close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=-1)[0]))[0]
@@ -119,8 +121,7 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
         alone = mine[count[mine] == 1]
         # what the nearest other kept pass takes over once refitted: its bead grows towards the
         # sample, up to the widest bead and by a shift of at most half a width
-        n = row_bounds[alone + 1] - row_bounds[alone]
-        block = np.repeat(row_bounds[alone], n) + np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+        block = concat_ranges(row_bounds[alone], row_bounds[alone + 1] - row_bounds[alone])
         block = block[(piece_of[block] != k) & kept[piece_of[block]]]
         o_row, o_gap, o_half = row[block], gap_of[block], half_of[block]
         nearest = np.r_[True, o_row[1:] != o_row[:-1]] if len(o_row) else np.zeros(0, bool)
@@ -196,7 +197,7 @@ class _Owners:
         counts = np.array([len(p) for p in self.fine], np.int64)
         start = np.cumsum(counts) - counts
         renumber = np.full(int(counts.sum()), -1, np.int64)
-        renumber[np.concatenate([np.arange(start[i], start[i] + counts[i]) for i in indices])] = np.arange(counts[indices].sum())
+        renumber[concat_ranges(start[indices], counts[indices])] = np.arange(counts[indices].sum())
         out = _Owners(self.x, [])
         out.fine, out.d, out.j = [self.fine[i] for i in indices], self.d.copy(), renumber[self.j]
         orphan = np.nonzero(out.j < 0)[0]
@@ -213,7 +214,7 @@ def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], w
     if not pieces:
         return len(x)
     dense = [resample(np.c_[p, b], FIT_STEP * width) for p, b in zip(pieces, widths)]
-    label = np.repeat(np.arange(len(pieces)), [len(q) for q in dense])
+    label = piece_labels(dense)
     dense = np.vstack(dense)
     pts, half = dense[:, :3], 0.5 * dense[:, 3]
     tree = cKDTree(pts)
@@ -235,7 +236,7 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     if not pieces or not len(x):
         return widths
     pts, half = np.vstack(pieces), 0.5 * np.concatenate(widths)
-    label = np.repeat(np.arange(len(pieces)), [len(p) for p in pieces])
+    label = piece_labels(pieces)
     key = np.concatenate([np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))] for p in pieces])
     tree = cKDTree(pts)
     d, j = tree.query(x, workers=-1)
@@ -287,8 +288,8 @@ def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray,
     if len(edges):
         a, b = surface.vertices[surface.edges[edges, 0]], surface.vertices[surface.edges[edges, 1]]
         k = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / (FIT_STEP * width)), 1).astype(np.int64)
-        e = np.repeat(np.arange(len(edges)), k)
-        u = (np.arange(k.sum()) - np.repeat(np.cumsum(k) - k, k)) / k[e]
+        e = run_labels(k)
+        u = run_offsets(k) / k[e]
         points.append(a[e] + u[:, None] * (b[e] - a[e]))
         normals.append(surface.face_normals[surface.edges_face[edges][e]])
     points = np.vstack(points)
@@ -308,7 +309,7 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     n = len(pts)
     stop = np.cumsum(counts)
     start = stop - counts
-    owner = np.repeat(np.arange(len(fine)), counts)
+    owner = run_labels(counts)
     lo, hi = start[owner], stop[owner]
     i = np.arange(n)
     tan = pts[np.minimum(i + 1, hi - 1)] - pts[np.maximum(i - 1, lo)]

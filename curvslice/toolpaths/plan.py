@@ -24,6 +24,7 @@ from curvslice.toolpaths.passes import thin_passes, uncross
 from curvslice.toolpaths.resample import extrusion_amounts, resample
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands
 from curvslice.toolpaths.spirals import connected_spirals
+from curvslice.toolpaths.stacked import piece_labels
 
 
 @dataclass
@@ -278,7 +279,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         if samples:
             q = np.vstack(samples)
             q, bead = q[:, :3], q[:, 3]
-            pid = np.repeat(np.arange(next_path, next_path + len(samples)), [len(s) for s in samples])
+            pid = next_path + piece_labels(samples)
             next_path += len(samples)
             cursor = q[-1]
             q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer

@@ -7,6 +7,7 @@ import numpy as np
 
 from curvslice.flow import filament_length
 from curvslice.toolpaths.constants import CORNER_ANGLE
+from curvslice.toolpaths.stacked import run_labels, run_offsets
 
 
 def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0, turn_weight: float = 0.0) -> np.ndarray:
@@ -32,8 +33,8 @@ def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0, turn_
     # every run between kept corners in n equal steps (the corners themselves are knots of cum)
     start, span = cum[keep[:-1]], cum[keep[1:]] - cum[keep[:-1]]
     n = np.maximum(np.ceil(span / step - 1e-9), 1).astype(np.int64)
-    run = np.repeat(np.arange(len(n)), n)
-    s = np.r_[start[run] + span[run] * (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / n[run], cum[-1]]
+    run = run_labels(n)
+    s = np.r_[start[run] + span[run] * run_offsets(n) / n[run], cum[-1]]
     return np.column_stack([np.interp(s, cum, p[:, i]) for i in range(p.shape[1])])
 
 

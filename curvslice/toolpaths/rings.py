@@ -18,6 +18,7 @@ from scipy.spatial import cKDTree
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import FIRST_LEVEL, GAP_LEVELS
 from curvslice.toolpaths.resample import resample
+from curvslice.toolpaths.stacked import run_labels, run_offsets
 
 
 @dataclass
@@ -96,14 +97,14 @@ def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
     ea, eb = band[f[f1, corner]], band[f[f1, (corner + 1) % 3]]
     lo, hi = np.minimum(ea, eb), np.maximum(ea, eb)
     cnt = hi - lo + 1
-    rep = np.repeat(np.arange(len(lo)), cnt)
-    bb = lo[rep] + (np.arange(cnt.sum()) - np.repeat(np.cumsum(cnt) - cnt, cnt))
+    rep = run_labels(cnt)
+    bb = lo[rep] + run_offsets(cnt)
     n1 = offset[f1[rep]] + bb - bmin[f1[rep]]
     n2 = offset[f2[rep]] + bb - bmin[f2[rep]]
     graph = sp.coo_matrix((np.ones(len(n1)), (n1, n2)), shape=(n_nodes, n_nodes))
     n_comp, comp = connected_components(graph, directed=False)
-    node_face = np.repeat(np.arange(len(f)), width)
-    node_band = bmin[node_face] + (np.arange(n_nodes) - offset[node_face])
+    node_face = run_labels(width)
+    node_band = bmin[node_face] + run_offsets(width)
     upper = np.r_[levels, np.inf][node_band]
     comp_top = np.full(n_comp, -np.inf)
     np.maximum.at(comp_top, comp, np.minimum(d[f[node_face]].max(axis=1), upper))
@@ -113,10 +114,10 @@ def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
 
     # one oriented segment per (face, crossed level)
     crossings = bmax - bmin
-    pf = np.repeat(np.arange(len(f)), crossings)
+    pf = run_labels(crossings)
     if len(pf) == 0:
         return [], bands
-    pk = bmin[pf] + (np.arange(len(pf)) - np.repeat(np.cumsum(crossings) - crossings, crossings))
+    pk = bmin[pf] + run_offsets(crossings)
     above = d[f[pf]] >= levels[pk][:, None]
     nxt = np.roll(above, -1, axis=1)
     start_c = np.argmax(above & ~nxt, axis=1)
