@@ -10,8 +10,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from curvslice.toolpaths.constants import (BEAD_RANGE, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MINOR_SHARE, OPEN_GAP,
-                                           REDUNDANT_LENGTH)
+from curvslice.toolpaths.constants import (BEAD_RANGE, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
+                                           OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS)
 from curvslice.toolpaths.passes import gap_passes
 from curvslice.toolpaths.resample import resample
 from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
@@ -125,7 +125,7 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
         block = block[(piece_of[block] != k) & kept[piece_of[block]]]
         o_row, o_gap, o_half = row[block], gap_of[block], half_of[block]
         nearest = np.r_[True, o_row[1:] != o_row[:-1]] if len(o_row) else np.zeros(0, bool)
-        taken = (o_gap + o_half <= widest) & (o_gap <= width + o_half) & take_over
+        taken = (o_gap + o_half <= widest) & (o_gap <= 2.0 * MAX_SHIFT * width + o_half) & take_over
         only = len(alone) - int(np.sum(taken[nearest]))
         if len(mine) - len(alone) >= only or (gap is not None and gap[k] and only < MINOR_SHARE * len(samples)):
             keep.remove(k)
@@ -250,7 +250,8 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     # beads along it) bounds the growth
     pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(want.max() + half.max()), output_type="coo_matrix")
     owner, other = owners[pairs.row], pairs.col
-    far = (label[other] != label[owner]) | (np.abs(key[other] - key[owner]) > 2.0 * np.maximum(width, 2.0 * half[other]))
+    far = (label[other] != label[owner]) | (np.abs(key[other] - key[owner])
+                                            > SAME_PASS_BEADS * np.maximum(width, 2.0 * half[other]))
     limit = np.full(len(pts), np.inf)
     np.minimum.at(limit, owner[far], pairs.data[far] - half[other[far]])
     grown = half.copy()
@@ -348,7 +349,8 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     spill = np.stack([_window(np.bincount(j[s & edge], minlength=n).astype(np.float64), lo, hi, FIT_HALF, "max") > 0
                       for s in (left, ~left)])
     excess = np.maximum(bead - extent.sum(axis=0), 0.0)
-    shift = np.clip(0.5 * (extent[0] - extent[1]) + 0.5 * excess * (spill[0].astype(float) - spill[1]), -0.5 * width, 0.5 * width)
+    shift = np.clip(0.5 * (extent[0] - extent[1]) + 0.5 * excess * (spill[0].astype(float) - spill[1]),
+                    -MAX_SHIFT * width, MAX_SHIFT * width)
     pts = pts + shift[:, None] * side
     grow = np.maximum(reach - 0.5 * bead, 0.0)
     pts[first] -= grow[first, None] * tan[first]

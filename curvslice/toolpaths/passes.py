@@ -9,7 +9,9 @@ from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from curvslice.geodesic import edge_keys
-from curvslice.toolpaths.constants import BEAD_MIN, BRANCH_ROUNDS, OPEN_GAP, THIN_REGION, WALL_LENGTH
+from curvslice.toolpaths.constants import (BEAD_MIN, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
+                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, OPEN_GAP, RIDGE_FLOOR,
+                                           RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
 from curvslice.toolpaths.resample import resample
 
 
@@ -41,7 +43,7 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
         return f, passes
     thin_v = np.nonzero(np.isin(label, thin_label))[0]  # the thin regions' own graph (small)
     e = np.searchsorted(thin_v, edges[np.isin(label[edges[:, 0]], thin_label)])
-    mid = np.maximum(0.5 * (dist[thin_v[e[:, 0]]] + dist[thin_v[e[:, 1]]]), 0.05 * width)
+    mid = np.maximum(0.5 * (dist[thin_v[e[:, 0]]] + dist[thin_v[e[:, 1]]]), RIDGE_FLOOR * width)
     cost = np.linalg.norm(vertices[thin_v[e[:, 0]]] - vertices[thin_v[e[:, 1]]], axis=1) / mid**2
     weighted = sp.coo_matrix((cost, (e[:, 0], e[:, 1])), shape=(len(thin_v),) * 2).tocsr()
     weighted = weighted + weighted.T
@@ -64,7 +66,7 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
                     break  # a blob, not a wall: the contours print it
                 if len(pts) > 2:
                     pts[1:-1] = (pts[:-2] + pts[1:-1] + pts[2:]) / 3.0  # the edge path's zigzag smoothed
-                near = cKDTree(pts).sparse_distance_matrix(cKDTree(vertices[thin_v[members]]), 0.5 * width,
+                near = cKDTree(pts).sparse_distance_matrix(cKDTree(vertices[thin_v[members]]), RIDGE_REACH * width,
                                                            output_type="coo_matrix")
                 half = dist[ridge].copy()  # the ridge of d near each point: an edge path runs beside it
                 np.maximum.at(half, near.row, dist[thin_v[members[near.col]]])
@@ -73,9 +75,9 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
             if len(passes) == mine:
                 break
             done.append(c)
-            dense = np.vstack([resample(np.c_[p, b], 0.1 * width) for p, b in zip(passes[mine:], widths[mine:])])
+            dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(passes[mine:], widths[mine:])])
             gap, nearest = cKDTree(dense[:, :3]).query(vertices[thin_v[todo]])
-            todo = todo[gap > 0.5 * dense[nearest, 3] + 0.25 * width]
+            todo = todo[gap > 0.5 * dense[nearest, 3] + BRANCH_MARGIN * width]
     keep = ~np.isin(label[f[:, 0]], done)
     return f[keep], passes
 
@@ -94,7 +96,7 @@ def _longest_path(graph: sp.csr_matrix) -> np.ndarray:
 
 
 def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray], width: float,
-               widths: list[np.ndarray] | None = None, min_vertices: int = 3) -> list[np.ndarray]:
+               widths: list[np.ndarray] | None = None, min_vertices: int = GAP_PASS_VERTICES) -> list[np.ndarray]:
     """Extra passes through what the spirals leave open: narrow strips (thinner than a bead, where
     no contour exists) and the medial-axis gaps between contour families (thesis §3.7).
 
@@ -110,7 +112,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         open_v = np.ones(len(v), bool)
     else:
         widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
-        dense = np.vstack([resample(np.c_[p, b], 0.1 * width) for p, b in zip(pieces, widths)])
+        dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(pieces, widths)])
         gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
         open_v = gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
     ring = np.roll(faces, -1, axis=1)
@@ -128,12 +130,12 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     for c in np.nonzero(sizes >= min_vertices)[0]:
         members = np.nonzero((label == c) & open_v)[0]
         chain = members[_longest_path(graph[members][:, members])]
-        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= 0.5 * width:
+        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= GAP_PASS_LENGTH * width:
             passes.append(v[chain])
     return passes
 
 
-def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
+def uncross(piece: np.ndarray, width: float, rounds: int = UNCROSS_ROUNDS) -> np.ndarray:
     """Order of a piece's points without the places where it crosses itself (2-opt: reverse the
     stretch between two crossing segments, so their ends are joined the other way round; the
     path stays one piece over the same points and gets shorter, so this ends).
@@ -141,8 +143,8 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
     Contour arcs never cross each other; the links between them -- from ring to ring, into a
     spliced child spiral -- can, where the cuts of neighbouring rings drift apart (Zhao et al.
     2016 align them on one cut line) or once :func:`fit_beads` has moved the passes sideways.
-    Two segments cross when they come within ``0.01·width`` of each other at inner points, more
-    than 15° apart. Crossings whose stretches do not overlap are undone in the same round.
+    Two segments cross when they come within ``CROSS_GAP`` widths of each other at inner points,
+    more than ``CROSS_ANGLE`` apart. Crossings whose stretches do not overlap are undone in the same round.
     """
     order = np.arange(len(piece))
     for _ in range(rounds):
@@ -153,7 +155,7 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
         length = np.linalg.norm(b - a, axis=1)
         mid = 0.5 * (a + b)
         tree = cKDTree(mid)
-        typical = float(np.percentile(length, 99)) + 1e-9
+        typical = float(np.percentile(length, CROSS_PERCENTILE)) + 1e-9
         pairs = [tree.query_pairs(typical, output_type="ndarray")]
         for k in np.nonzero(length > typical)[0]:  # the few long links, against everything near
             near = np.asarray(tree.query_ball_point(mid[k], 0.5 * (length[k] + length.max()) + 1e-9), np.int64)
@@ -173,7 +175,7 @@ def uncross(piece: np.ndarray, width: float, rounds: int = 100) -> np.ndarray:
             t = np.clip((uu * vw - uv * uw) / den, 0, 1)
         gap = np.linalg.norm(w0 + s[:, None] * u - t[:, None] * v, axis=1)
         sin = np.sqrt(np.maximum(den, 0)) / np.maximum(np.sqrt(uu * vv), 1e-300)
-        hit = (gap < 0.01 * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(np.radians(15)))
+        hit = (gap < CROSS_GAP * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(CROSS_ANGLE))
         if not hit.any():
             return order
         last = -2

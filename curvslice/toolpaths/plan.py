@@ -19,7 +19,8 @@ from curvslice.errors import CurvsliceError
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import layer_beads
-from curvslice.toolpaths.constants import BRIDGE_HOLE, FIRST_LEVEL, GAP_NOISE, HARD_TILT, TURN_WEIGHT, WIDTH_WEIGHT
+from curvslice.toolpaths.constants import (BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, SUBDIVIDE_EDGE,
+                                           THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
 from curvslice.toolpaths.passes import thin_passes, uncross
 from curvslice.toolpaths.resample import extrusion_amounts, resample
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands
@@ -110,7 +111,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
                 fill_gaps: bool = True, min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerPaths:
     """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
     :func:`gap_passes` through what they leave open when ``fill_gaps``. Holes narrower than
-    ``BRIDGE_HOLE`` widths are bridged (:func:`bridge_small_holes`); a mesh coarser than half a width
+    ``BRIDGE_HOLE`` widths are bridged (:func:`bridge_small_holes`); a mesh coarser than ``SUBDIVIDE_EDGE`` widths
     is subdivided once (1 → 4 triangles) so the distance field and contours resolve the passes.
     Regions narrower than ``2·THIN_REGION`` widths get one ridge pass of their own width
     (:func:`thin_passes`). Every pass is then freed of self-crossings (:func:`uncross`) and its
@@ -119,7 +120,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     leaves past tips and corners (:func:`fill_slivers`)."""
     surface = clean_surface(mesh)
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, BRIDGE_HOLE * np.pi * width)
-    if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > 0.5 * width:
+    if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > SUBDIVIDE_EDGE * width:
         v, f = trimesh.remesh.subdivide(v, f)  # finer heat step (t = h²) and contours than the voxels
     if len(f) == 0:
         return LayerPaths(pieces=[])
@@ -219,7 +220,7 @@ class Toolpaths:
 
 
 def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, float]],
-               candidates: int = 12) -> tuple[np.ndarray, np.ndarray]:
+               candidates: int = THICKNESS_CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
     """Closest point under each point on the platform top ``z = 0`` or the ``earlier`` layers'
     triangles (Eq. 3.3; ``candidates`` nearest triangle centroids tried on each; each layer comes
     with its centroid tree and largest centroid-to-corner reach) and the distance
@@ -259,7 +260,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         tri = surface.triangles
         own_tree = cKDTree(tri.mean(axis=1)) if len(tri) else None
         # (a floor: fewer candidate triangles than for the samples' own thickness below)
-        vertex_thickness = np.clip(_thickness(surface.vertices, earlier[-settings.window:], 3)[1],
+        vertex_thickness = np.clip(_thickness(surface.vertices, earlier[-settings.window:], FLOOR_CANDIDATES)[1],
                                    settings.min_thickness * w, settings.max_thickness * w)
         vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
 

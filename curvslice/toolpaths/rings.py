@@ -16,7 +16,8 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from curvslice.geodesic import edge_keys
-from curvslice.toolpaths.constants import FIRST_LEVEL, GAP_LEVELS
+from curvslice.toolpaths.constants import (CENTRE_BIN, DENSE_STEP, FIRST_LEVEL, GAP_LEVELS, ISLAND_RISE, PEAK_RISE,
+                                           SLIVER_TOP)
 from curvslice.toolpaths.resample import resample
 from curvslice.toolpaths.stacked import run_labels, run_offsets
 
@@ -161,7 +162,7 @@ def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
 
 def contour_gap(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, width: float) -> float:
     """Median 3D gap between the contours of ``dist`` at adjacent levels ``width`` apart, per
-    ``width`` (from each contour point, sampled every 0.1 widths, to the nearest of the level
+    ``width`` (from each contour point, sampled every ``DENSE_STEP`` widths, to the nearest of the level
     below; the outermost ``GAP_LEVELS`` levels, which hold most of the passes); 1 when there are
     fewer than two levels.
 
@@ -177,21 +178,21 @@ def contour_gap(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, width
     rings, _ = contour_rings(vertices, faces, dist, levels)
     by_level: dict[float, list[np.ndarray]] = {}
     for r in rings:
-        by_level.setdefault(r.level, []).append(resample(np.vstack([r.points, r.points[:1]]), 0.1 * width))
+        by_level.setdefault(r.level, []).append(resample(np.vstack([r.points, r.points[:1]]), DENSE_STEP * width))
     ordered = [np.vstack(by_level[k]) for k in sorted(by_level)]
     gaps = [cKDTree(a).query(b, workers=-1)[0] for a, b in zip(ordered[:-1], ordered[1:])]
     return float(np.median(np.concatenate(gaps))) / width if gaps else 1.0
 
 
 def prune_islands(rings: list[Ring], comp_top: np.ndarray, width: float) -> list[Ring]:
-    """Drop rings around a peak that rises less than a quarter width above their level: along a
+    """Drop rings around a peak that rises less than ``ISLAND_RISE`` widths above their level: along a
     ridge these are islands of the distance field's noise, and printing one would lay two passes
     less than half a width apart (an overlap larger than the gap it leaves)."""
     bounding: dict[int, int] = {}
     for r in rings:
         bounding[r.below] = bounding.get(r.below, 0) + 1
         bounding[r.above] = bounding.get(r.above, 0) + 1
-    return [r for r in rings if not (bounding[r.above] == 1 and comp_top[r.above] - r.level < 0.25 * width)]
+    return [r for r in rings if not (bounding[r.above] == 1 and comp_top[r.above] - r.level < ISLAND_RISE * width)]
 
 
 def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels: np.ndarray,
@@ -201,9 +202,9 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
 
     A band component bounded by at most one ring, all below it, is covered up to half a width
     above that ring (or not at all when no ring bounds it: a region thinner than a bead). If its
-    peak rises more than ``0.15·width`` beyond, a contour at the mid level ``(covered + top) / 2``
+    peak rises more than ``PEAK_RISE`` widths beyond, a contour at the mid level ``(covered + top) / 2``
     covers the rest, so peaks and regions thinner than a bead are printed too. A region less than
-    half a bead wide (peak below ``width/4``) gets one pass along its centre line instead of a loop.
+    half a bead wide (peak below ``SLIVER_TOP`` widths) gets one pass along its centre line instead of a loop.
     """
     bounding: dict[int, list[Ring]] = {}
     for r in rings:
@@ -219,11 +220,11 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
         if len(around) > 1 or any(r.below == c for r in around) or (b > 0 and not around):
             continue  # not a peak, or the peak of a pruned island
         covered = low[b] + 0.5 * width if around else 0.0
-        if around and bands.top[c] - covered <= 0.15 * width:
+        if around and bands.top[c] - covered <= PEAK_RISE * width:
             continue  # (a region without any ring is always printed)
         level = 0.5 * (covered + bands.top[c])
         sub_faces = faces[bands.node_face[(bands.comp == c)]]
-        if not around and bands.top[c] < 0.25 * width:
+        if not around and bands.top[c] < SLIVER_TOP * width:
             lines.append(centre_line(vertices[np.unique(sub_faces)], width))
             continue
         found, sub = contour_rings(vertices, sub_faces, dist, np.array([level]))
@@ -234,11 +235,11 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
 
 
 def centre_line(points: np.ndarray, width: float) -> np.ndarray:
-    """Centre line of a thin region: its points averaged in bins of ``width/2`` along the main axis."""
+    """Centre line of a thin region: its points averaged in bins of ``CENTRE_BIN`` widths along the main axis."""
     centre = points.mean(axis=0)
     axis = np.linalg.svd(points - centre, full_matrices=False)[2][0]
     t = (points - centre) @ axis
-    bins = np.floor((t - t.min()) / (0.5 * width)).astype(np.int64)
+    bins = np.floor((t - t.min()) / (CENTRE_BIN * width)).astype(np.int64)
     counts = np.bincount(bins)
     sums = np.stack([np.bincount(bins, weights=points[:, i]) for i in range(3)], axis=1)
     line = sums[counts > 0] / counts[counts > 0, None]

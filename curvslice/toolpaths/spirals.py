@@ -14,7 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from curvslice.toolpaths.constants import CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, THIN_RING
+from curvslice.toolpaths.constants import (CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH, SPLICE_SHIFT,
+                                           SPLICE_SHIFTS, THIN_RING)
 from curvslice.toolpaths.rings import Ring, centre_line
 
 
@@ -189,17 +190,18 @@ class _Builder:
         closed = np.vstack([ring.points, ring.points[:1]])
         cum = ring.cumlen
         placed: list[tuple[float, int]] = []  # (offset along the walk, child)
+        shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
         for child in children:
             s_child, dist = closest_s(ring, self._nearest_point(child, ring))
             offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
             taken = [o for o, _ in placed]
             ok_pos = None
-            for shift in np.r_[0.0, np.repeat(np.arange(1, 9) * 0.5 * self.w, 2) * np.tile([1, -1], 8)]:
+            for shift in np.r_[0.0, shifts]:
                 o = offset + shift
                 if g <= o <= span - g and all(abs(o - t) >= 2 * g for t in taken):
                     ok_pos = o
                     break
-            if ok_pos is None or dist > 3.0 * self.w:
+            if ok_pos is None or dist > SPLICE_REACH * self.w:
                 self._separate(child)
                 continue
             placed.append((ok_pos, child))
