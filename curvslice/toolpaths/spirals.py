@@ -47,7 +47,7 @@ def _point_at(closed_pts: np.ndarray, cum: np.ndarray, s: float) -> np.ndarray:
     return closed_pts[i] + t * (closed_pts[i + 1] - closed_pts[i])
 
 
-def closest_s(ring: Ring, point: np.ndarray) -> tuple[float, float]:
+def _closest_s(ring: Ring, point: np.ndarray) -> tuple[float, float]:
     """Arclength of the point of ``ring`` closest to ``point`` and that distance."""
     a = ring.points
     b = np.roll(a, -1, axis=0)
@@ -136,7 +136,7 @@ class _Builder:
         point = anchor
         tangent = host_tangent
         for k, ring in enumerate(rings):
-            s, _ = closest_s(ring, point)
+            s, _ = _closest_s(ring, point)
             if tangent is not None and ring.length > 0 and np.dot(_tangent(ring, s, self.w), tangent) < 0:
                 ring = _reversed(ring)
                 s = ring.length - s
@@ -192,7 +192,7 @@ class _Builder:
         placed: list[tuple[float, int]] = []  # (offset along the walk, child)
         shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
         for child in children:
-            s_child, dist = closest_s(ring, self._nearest_point(child, ring))
+            s_child, dist = _closest_s(ring, self._nearest_point(child, ring))
             offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
             taken = [o for o, _ in placed]
             ok_pos = None
@@ -247,7 +247,7 @@ def connected_spirals(rings: list[Ring], width: float,
     while remaining:
         # root: the band-0 component of the outermost ring nearest to the cursor
         outer = [i for i in remaining if rings[i].level == FIRST_LEVEL * width] or list(remaining)
-        first = min(outer, key=lambda i: closest_s(rings[i], cursor)[1])
+        first = min(outer, key=lambda i: _closest_s(rings[i], cursor)[1])
         root = rings[first].below
         tree, order = _contour_tree(rings, root)
         remaining -= set(order)
