@@ -22,7 +22,7 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9), one module per
    (:func:`gap_passes`), redundant slivers dropped (:func:`needed_pieces`), beads widened over
    what the fit leaves past tips and corners (:func:`fill_slivers`), self-crossings removed
    (:func:`uncross`);
-5. :mod:`~curvslice.toolpaths.resample`: re-sampling at ``step`` (1 mm in the thesis, §3.5.2),
+5. :mod:`~curvslice.toolpaths.resampling`: re-sampling at ``step`` (1 mm in the thesis, §3.5.2),
    keeping sharp corners, bends and the bead width profile;
 6. extrusion per segment from length × bead width × local layer thickness (volume
    conservation, :func:`curvslice.flow.filament_length`).
@@ -36,7 +36,7 @@ from curvslice.toolpaths.beads import fill_slivers, fit_beads, needed_pieces, su
 from curvslice.toolpaths.passes import gap_passes, thin_passes, uncross
 from curvslice.toolpaths.plan import (LayerPaths, ToolpathSettings, Toolpaths, bridge_small_holes, clean_surface,
                                       layer_paths, plan_toolpaths, save_toolpaths)
-from curvslice.toolpaths.resample import extrusion_amounts, resample
+from curvslice.toolpaths.resampling import extrusion_amounts, resample
 from curvslice.toolpaths.rings import Bands, Ring, contour_gap, contour_rings, peak_rings, prune_islands
 
 __all__ = ["Bands", "LayerPaths", "Ring", "ToolpathSettings", "Toolpaths", "bridge_small_holes", "clean_surface",

@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 from curvslice.toolpaths.constants import (BEAD_RANGE, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
                                            OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS)
 from curvslice.toolpaths.passes import gap_passes
-from curvslice.toolpaths.resample import resample
+from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
 
 

@@ -183,7 +183,7 @@ MINOR_SHARE = 0.005
 #: a spiral's next ring, not the bead's own continuation.
 SAME_PASS_BEADS = 2.0
 
-# ----------------------------------------------------------------------------- re-sampling (resample.py)
+# ----------------------------------------------------------------------------- re-sampling (resampling.py)
 
 #: Sharp corners (turn above this angle) are kept as samples when re-sampling at the 1 mm step
 #: (§3.5.2): a chord with its ends half a step from a corner of turn θ passes ``(step/2)·sin(θ/2)``

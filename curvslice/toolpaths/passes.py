@@ -12,7 +12,7 @@ from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (BEAD_MIN, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
                                            DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, OPEN_GAP, RIDGE_FLOOR,
                                            RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
-from curvslice.toolpaths.resample import resample
+from curvslice.toolpaths.resampling import resample
 
 
 def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,

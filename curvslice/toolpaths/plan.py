@@ -22,7 +22,7 @@ from curvslice.toolpaths.beads import layer_beads
 from curvslice.toolpaths.constants import (BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, SUBDIVIDE_EDGE,
                                            THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
 from curvslice.toolpaths.passes import thin_passes, uncross
-from curvslice.toolpaths.resample import extrusion_amounts, resample
+from curvslice.toolpaths.resampling import extrusion_amounts, resample
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands
 from curvslice.toolpaths.spirals import connected_spirals
 from curvslice.toolpaths.stacked import piece_labels

@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (CENTRE_BIN, DENSE_STEP, FIRST_LEVEL, GAP_LEVELS, ISLAND_RISE, PEAK_RISE,
                                            SLIVER_TOP)
-from curvslice.toolpaths.resample import resample
+from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import run_labels, run_offsets
 
 
