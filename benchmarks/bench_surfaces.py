@@ -4,8 +4,8 @@ The thesis's reference (Table 3.1): bunny working surfaces 888.72 s (C++, DC + C
 Xeon); the authors' public code on this kind of 2-core machine trims the bunny at 1.0 mm in 362.8 s
 and writes 73 of 93 layers (``benchmarks/paper.py``). Target here: bunny at 1.0 mm ≤ 60 s.
 
-Run ``python benchmarks/bench_surfaces.py [SLICE_DIR ...]`` on folders holding ``field.npz`` and
-``solid.stl`` (e.g. from ``curvslice slice bunny.stl --voxel 1.0 --stages field``). Without folders
+Run ``python benchmarks/bench_surfaces.py [SLICE_DIR ...]`` on slice folders (e.g. from ``curvslice
+slice bunny.stl --voxel 1.0 --stages field``: their field is resumed, not recomputed). Without folders
 it builds the bunny's field at 1.0 mm (pg-sp-gcfa, about a minute) from ``../shared/models`` first.
 Also times the signed distance to ∂H (the trimming's kernel) per 10k points.
 """
@@ -13,7 +13,6 @@ Also times the signed distance to ∂H (the trimming's kernel) per 10k points.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -21,25 +20,17 @@ import numpy as np
 import trimesh
 
 from benchmarks.paper import AUTHORS_CPP, TABLE_3_1
-from curvslice.working_surfaces import SolidDistance, extract_working_surfaces
+from curvslice.pipeline import Context, Settings, run, settings_of, stage
+from curvslice.working_surfaces import SolidDistance
 
 TARGET_S = 60.0
 MODELS = Path(__file__).resolve().parents[2] / "shared" / "models"
 
 
-def bunny_field() -> tuple[dict, trimesh.Trimesh]:
-    from curvslice.growing_field import growing_field
-    from curvslice.peeling_field import peeling_field
-    from curvslice.platform import disc_platform
-    from curvslice.solid import load_solid
-    from curvslice.voxelize import voxelize
-
-    solid, _ = load_solid(MODELS / "bunny.stl")
-    grid = voxelize(solid, 1.0)
-    platform = disc_platform(solid).vertices
-    growing, _ = growing_field(grid, platform, "pg-sp-gcfa", peeling=peeling_field(grid, platform))
-    field = {"growing": growing, "occupied": grid.occupied, "origin": grid.origin, "voxel_size": 1.0}
-    return field, solid
+def field_context(model: Path, settings: Settings, resume: Path | None = None) -> Context:
+    """The field stage's result (computed, or reused from the slice folder ``resume``) in a pipeline context."""
+    result = run(model, settings, until="field", resume=resume)
+    return Context(model, settings, {"field": result.field})
 
 
 def distance_rate(solid: trimesh.Trimesh, n: int = 10_000) -> float:
@@ -52,12 +43,13 @@ def distance_rate(solid: trimesh.Trimesh, n: int = 10_000) -> float:
     return (time.perf_counter() - start) * 10_000 / n
 
 
-def run_case(name: str, field: dict, solid: trimesh.Trimesh, repeat: int) -> None:
-    w = float(field["voxel_size"])
+def run_case(name: str, ctx: Context, repeat: int) -> None:
+    w = ctx.settings.voxel
+    solid = ctx.results["field"].solid
     times, dc, trim = [], [], []
     for _ in range(repeat):
         start = time.perf_counter()
-        layers = extract_working_surfaces(field["growing"], field["origin"], w, solid, occupied=field["occupied"])
+        layers = stage("layers").run(ctx).layers
         times.append(time.perf_counter() - start)
         dc.append(sum(m.metadata["dc_seconds"] for m in layers))
         trim.append(sum(m.metadata["trim_seconds"] for m in layers))
@@ -87,15 +79,20 @@ def main() -> None:
     args = parser.parse_args()
     if not args.folders:
         start = time.perf_counter()
-        field, solid = bunny_field()
+        ctx = field_context(MODELS / "bunny.stl", Settings(voxel=1.0))
         print(f"bunny field at 1.0 mm built in {time.perf_counter() - start:.1f} s")
-        run_case("bunny", field, solid, args.repeat)
+        run_case("bunny", ctx, args.repeat)
     for folder in args.folders:
-        with np.load(folder / "field.npz") as f:
-            field = {k: f[k] for k in ("growing", "occupied", "origin", "voxel_size")}
-        report = folder / "report.json"
-        name = Path(json.loads(report.read_text())["model"]).stem if report.exists() else folder.name
-        run_case(name, field, trimesh.load(folder / "solid.stl", force="mesh"), args.repeat)
+        settings = settings_of(folder)
+        ctx = field_context(Path(run_model(folder)), settings, resume=folder)
+        run_case(Path(run_model(folder)).stem, ctx, args.repeat)
+
+
+def run_model(folder: Path) -> str:
+    """The model file a slice folder was made from."""
+    from curvslice.pipeline import read_report
+
+    return read_report(folder)["model"]
 
 
 if __name__ == "__main__":

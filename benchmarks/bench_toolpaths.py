@@ -2,10 +2,10 @@
 stage (connected Fermat spirals + orientations + extrusion) on real layers.
 
 The thesis's reference (Table 3.1): bunny tool-paths 51.09 s (C++, exact FWP-MMP geodesics).
-Run ``python benchmarks/bench_toolpaths.py SLICE_DIR [SLICE_DIR ...]`` on folders that hold
-``layers/layer_*.ply`` (e.g. from ``curvslice slice bunny.stl --voxel 1.0``); it writes
-``toolpaths.npz`` / ``toolpaths.gcode`` there and prints the verifier's table. Without folders
-it only times the geodesic solve.
+Run ``python benchmarks/bench_toolpaths.py SLICE_DIR [SLICE_DIR ...]`` on slice folders made to
+the layers stage at least (e.g. ``curvslice slice bunny.stl --voxel 1.0 --stages layers``); the
+pipeline resumes each (field and layers reused), re-plans the tool-paths into it and the verifier's
+table is printed. Without folders it only times the geodesic solve.
 """
 
 from __future__ import annotations
@@ -15,11 +15,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-import trimesh
 from scipy.spatial import Delaunay
 
 from curvslice.geodesic import boundary_distance
-from curvslice.toolpaths import ToolpathSettings, plan_toolpaths, save_toolpaths
+from curvslice.pipeline import read_report, run, settings_of
 from curvslice.verify import format_table
 from curvslice.verify.toolpaths import checks
 
@@ -44,19 +43,17 @@ def geodesic_rate(sizes: tuple[int, ...] = (10_000, 40_000)) -> None:
 
 
 def run_folder(folder: Path, width: float | None) -> None:
-    files = sorted((folder / "layers").glob("layer_*.ply"))
-    layers = [trimesh.load(p, process=False, force="mesh") for p in files]
-    if width is None:
-        voxel = float(np.load(folder / "field.npz")["voxel_size"]) if (folder / "field.npz").exists() else 0.8
-        width = voxel / 0.8
-    settings = ToolpathSettings(path_width=width)
-    start = time.perf_counter()
-    tp = plan_toolpaths(layers, settings)
-    dt = time.perf_counter() - start
-    save_toolpaths(folder, tp, settings)
+    settings = settings_of(folder)
+    if width is not None:
+        settings = settings.replace(path_width=width)
+    result = run(read_report(folder)["model"], settings, until="toolpaths", resume=folder, out=folder, force=True,
+                 redo="toolpaths")
+    tp = result.toolpaths
+    width = result.results["toolpaths"].settings.path_width
+    dt = result.report["timings_s"]["toolpaths"]
     pieces = [row["pieces"] for row in tp.layers]
     gaps = [row.get("gap_passes", 0) for row in tp.layers]
-    print(f"{folder.name}: {len(layers)} layers, width {width:.3f} mm: tool-paths {dt:.1f} s "
+    print(f"{folder.name}: {len(result.layers)} layers, width {width:.3f} mm: tool-paths {dt:.1f} s "
           f"(thesis bunny {THESIS_BUNNY_S} s; spirals {tp.seconds['spirals']:.1f} s, "
           f"orientation {tp.seconds['orientation']:.1f} s), {len(tp.positions):,} samples, "
           f"pieces/layer mean {np.mean(pieces):.2f} max {max(pieces)}, gap passes {sum(gaps)}, "
@@ -66,7 +63,7 @@ def run_folder(folder: Path, width: float | None) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("folders", nargs="*", type=Path, help="slice folders with layers/")
+    parser.add_argument("folders", nargs="*", type=Path, help="slice folders (made to the layers stage at least)")
     parser.add_argument("--width", type=float, help="path width, mm (default: voxel size / 0.8, §3.6)")
     args = parser.parse_args()
     geodesic_rate()

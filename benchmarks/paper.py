@@ -7,7 +7,7 @@
 * Thesis Table 4.2 (§4.5.3): motion planning of one tool-path; "init" = IK ladder + graph search,
   "optm" = jerk optimization by local filtering (Alg. 6), "dense" = a ladder with θ every degree.
 * The authors' public C++ code (VoxelMultiAxisAM) run on the shared models on a 2-core machine of
-  this project's kind (DESIGN.md): the figures to beat on the same model and voxel size.
+  this project's kind (figures from ../shared/DESIGN.md, the project's design notes): the figures to beat on the same model and voxel size.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ TABLE_3_1: dict[str, dict[str, float | None]] = {
     "fertility": {"voxels": 77_064, "peeling": 3.79, "shadow": 207.04, "total": 232.76, "surfaces": None, "toolpaths": None, "missed": 511},
 }
 
-#: Fig. 3.16 (via DESIGN.md): greedy CFA without shadow prevention on the Armadillo.
+#: Fig. 3.16 (figure as quoted in ../shared/DESIGN.md): greedy CFA without shadow prevention on the Armadillo.
 GCFA_ARMADILLO = {"voxels": 540_689, "growing": 32.8, "missed": 10_752}
 
 #: Table 4.2: waypoints and seconds of ladder init (IK + graph search), jerk optimization, total, dense graph.

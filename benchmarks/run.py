@@ -43,6 +43,9 @@ QUICK_ROBOT_WAYPOINTS = 150
 
 #: Stage keys in pipeline order, with the label the tables use.
 STAGE_LABELS = {
+    "field_gcfa": "field stage, gcfa (load … growing)",
+    "field_sp-gcfa": "field stage, sp-gcfa (load … growing)",
+    "field_pg-sp-gcfa": "field stage, pg-sp-gcfa (load … growing)",
     "load": "load / repair / place",
     "voxelize": "voxelize (conservative)",
     "peeling": "peeling field (Alg. 4)",
@@ -53,6 +56,7 @@ STAGE_LABELS = {
     "dual_contouring": "· dual contouring",
     "trimming": "· trimming by H",
     "geodesics": "geodesics (heat method)",
+    "toolpaths_and_cover": "tool-path stage incl. coverage check",
     "toolpaths": "tool-paths (total)",
     "spirals": "· Fermat spirals (incl. geodesics)",
     "orientation": "· orientations (Eq. 3.3)",
@@ -193,106 +197,114 @@ def robot_subset(toolpaths, target: int) -> np.ndarray:
 def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, robot: str | None = "ur5",
              robot_waypoints: int = ROBOT_WAYPOINTS, downstream: bool = True, repeat: int = 3,
              budget: float = 20.0, timeout: float | None = None, quiet: bool = False) -> dict[str, object]:
-    """All stages on one model at one voxel size; returns the case's JSON record. A stage stopped at
+    """All stages on one model at one voxel size, each timed alone through the pipeline's registry
+    (:func:`curvslice.pipeline.stage`); returns the case's JSON record. The field stage runs once per
+    growing method; its load / voxelize / peeling / growing times are recorded beside. A stage stopped at
     ``timeout`` is recorded as such; the stages that need its result are then left out."""
-    from curvslice.growing_field import growing_field
-    from curvslice.peeling_field import peeling_field
-    from curvslice.platform import disc_platform
-    from curvslice.solid import load_solid
-    from curvslice.voxelize import voxelize
+    from curvslice.pipeline import Context, Settings, stage
 
     rec = Recorder(repeat=repeat, budget=budget, quiet=quiet, timeout=timeout)
     if not quiet:
         print(f"{model.stem} @ {voxel} mm", flush=True)
-    solid, _ = rec.run("load", lambda: load_solid(model))
-    platform = disc_platform(solid)
-    grid = rec.run("voxelize", lambda: voxelize(solid, voxel))
-    counts: dict[str, object] = {"voxels": int(grid.occupied.sum()), "grid_shape": list(grid.shape)}
-    peel = rec.run("peeling", lambda: peeling_field(grid, platform.vertices))
-    counts["max_peeling"] = int(peel.max())
-    growing = None
+    settings = Settings(voxel=voxel, robot=robot)
+    counts: dict[str, object] = {}
+    ctx = None
     for method in methods:
+        c = Context(model, settings.replace(method=method), {})
         try:
-            g, stats = rec.run(f"growing_{method}", lambda m=method: growing_field(grid, platform.vertices, m, peeling=peel))
+            field_ = rec.run(f"field_{method}", lambda c=c: stage("field").run(c),
+                             lambda r, m=method: {("growing_" + m if k == "growing" else k): v
+                                                  for k, v in r.report["timings_s"].items()})
         except StageTimeout:
             continue
-        counts[method] = {"layers": stats.layers, "missed": stats.missed, "shadow_tests": stats.shadow_tests}
-        if method == "pg-sp-gcfa" or growing is None:
-            growing = g
-    if downstream and growing is not None:
+        rep = field_.report
+        counts.update(voxels=rep["voxels"], grid_shape=rep["grid_shape"])
+        counts[method] = {"layers": rep["layers"], "missed": rep["missed"], "shadow_tests": rep["shadow_tests"]}
+        if method == "pg-sp-gcfa" or ctx is None:
+            ctx, counts["max_peeling"] = c, rep["max_peeling"]
+            c.results["field"] = field_
+    if downstream and ctx is not None:
         try:
-            _downstream(rec, solid, grid, growing, platform, robot, robot_waypoints, counts)
+            _downstream(rec, ctx, robot_waypoints, counts)
         except StageTimeout:
             pass
     return {"model": model.stem, "voxel_mm": voxel, "counts": counts,
             "stages": {k: v.summary() for k, v in rec.stages.items()}}
 
 
-def _downstream(rec: Recorder, solid, grid, growing, platform, robot: str | None, robot_waypoints: int,
-                counts: dict[str, object]) -> None:
+def _downstream(rec: Recorder, ctx, robot_waypoints: int, counts: dict[str, object]) -> None:
     from curvslice.geodesic import boundary_distance
-    from curvslice.toolpaths import ToolpathSettings, clean_surface, plan_toolpaths, save_toolpaths
-    from curvslice.working_surfaces import extract_working_surfaces
+    from curvslice.pipeline import stage
+    from curvslice.toolpaths import clean_surface
 
-    layers = rec.run(
-        "surfaces", lambda: extract_working_surfaces(growing, grid.origin, grid.voxel_size, solid, occupied=grid.occupied),
-        lambda ls: {"dual_contouring": sum(m.metadata["dc_seconds"] for m in ls),
-                    "trimming": sum(m.metadata["trim_seconds"] for m in ls)})
+    ctx.results["layers"] = rec.run(
+        "surfaces", lambda: stage("layers").run(ctx),
+        lambda r: {"dual_contouring": sum(m.metadata["dc_seconds"] for m in r.layers),
+                   "trimming": sum(m.metadata["trim_seconds"] for m in r.layers)})
+    layers = ctx.results["layers"].layers
     counts["surfaces"] = {"layers": len(layers), "empty": sum(len(m.faces) == 0 for m in layers),
                           "triangles": int(sum(len(m.faces) for m in layers))}
     cleaned = [clean_surface(m) for m in layers]
     rec.run("geodesics", lambda: [boundary_distance(m.vertices, m.faces) for m in cleaned if len(m.faces)])
-    settings = ToolpathSettings(path_width=grid.voxel_size / 0.8)  # the default of `curvslice slice`
-    tp = rec.run("toolpaths", lambda: plan_toolpaths(layers, settings),
-                 lambda t: {"spirals": t.seconds["spirals"], "orientation": t.seconds["orientation"]})
+    # the stage also measures coverage for its report: its wall time is kept apart from the planning time
+    ctx.results["toolpaths"] = rec.run(
+        "toolpaths_and_cover", lambda: stage("toolpaths").run(ctx),
+        lambda r: {"toolpaths": r.report["timings_s"]["toolpaths"], "spirals": r.report["spirals_s"],
+                   "orientation": r.report["orientation_s"]})
+    tp = ctx.results["toolpaths"].toolpaths
     counts["toolpaths"] = {"samples": int(len(tp.positions)), "pieces": int(len(np.unique(tp.path))),
                            "layers_with_paths": int(len(np.unique(tp.layer)))}
-    motion, tpd, cell, family = None, None, None, None
-    if robot and len(tp.positions):
+    if ctx.settings.robot and len(tp.positions):
         try:
-            motion, tpd, cell, family = _robot(rec, tp, layers, platform, robot, robot_waypoints, counts)
+            _robot(rec, ctx, robot_waypoints, counts)
         except StageTimeout:
-            pass  # recorded as stopped; the export below then writes the tool-paths only
+            ctx.results.pop("robot", None)  # recorded as stopped; the export writes the tool-paths only
     with tempfile.TemporaryDirectory() as tmp:
         def export() -> None:
-            save_toolpaths(Path(tmp), tp, settings)
-            if motion is not None:
-                from curvslice.exporters.joints_csv import write_robot_outputs
-
-                write_robot_outputs(Path(tmp), cell, family, tpd, motion)
+            for name in ("toolpaths", "robot"):
+                if name in ctx.results:
+                    stage(name).save(ctx.results[name], Path(tmp), ctx.settings, ctx.results)
         rec.run("export", export)
 
 
-def _robot(rec: Recorder, tp, layers, platform, robot_name: str, target: int, counts: dict):
-    from curvslice.collision import CollisionScene
+def _robot(rec: Recorder, ctx, target: int, counts: dict) -> None:
+    """The robot stage on the first layers' ``target`` waypoints, and its IK ladder and graph search
+    timed alone beside it (Table 4.2's "init")."""
+    import dataclasses
+
     from curvslice.kinematics import load_robot
-    from curvslice.motion import circular_joints, ladder, plan_print, segment_speeds, shortest_path, step_times
+    from curvslice.motion import circular_joints, ladder, segment_speeds, shortest_path, step_times
+    from curvslice.pipeline import stage
     from curvslice.workcell import load_workcell
 
-    robot, cell = load_robot(robot_name), load_workcell(robot_name)
+    full = ctx.results["toolpaths"]
+    tp = full.toolpaths
     rows = robot_subset(tp, target)
-    tpd = {k: getattr(tp, k)[rows] for k in ("positions", "normals", "layer", "path", "feed", "extrusion")}
-    per_layer = [np.flatnonzero(tpd["layer"] == v) for v in np.unique(tpd["layer"])]
-    rungs = rec.run("ik", lambda: [ladder(robot, cell, tpd["positions"][r], tpd["normals"][r], cell.rotations)
+    subset = dataclasses.replace(tp, **{k: getattr(tp, k)[rows] for k in (
+        "positions", "normals", "layer", "path", "extrusion", "thickness", "feed", "bead")})
+    ctx.results["toolpaths"] = dataclasses.replace(full, toolpaths=subset)
+    robot, cell = load_robot(ctx.settings.robot), load_workcell(ctx.settings.robot)
+    per_layer = [np.flatnonzero(subset.layer == v) for v in np.unique(subset.layer)]
+    rungs = rec.run("ik", lambda: [ladder(robot, cell, subset.positions[r], subset.normals[r], cell.rotations)
                                    for r in per_layer])
     circ = circular_joints(*cell.limits(robot))
 
     def search() -> int:
         breaks = 0
         for r, (q, valid) in zip(per_layer, rungs):
-            dt = step_times(tpd["positions"][r], segment_speeds(tpd["path"][r], tpd["feed"][r], cell), cell.min_step_time)
+            dt = step_times(subset.positions[r], segment_speeds(subset.path[r], subset.feed[r], cell), cell.min_step_time)
             path, _, _ = shortest_path(q, valid, dt, cell.max_joint_speed, circ)
             breaks += int((np.diff(path.segment[path.segment >= 0]) != 0).sum())
         return breaks
 
     breaks = rec.run("graph_search", search)
-    scene = CollisionScene(robot, cell, platform.vertices)
-    motion = rec.run("motion", lambda: plan_print(robot, cell, tpd, collides_for_layer=lambda v: scene.for_layer(layers, v)))
-    counts["robot"] = {"robot": robot_name, "waypoints": len(rows), "layers": len(per_layer), "rotations": cell.rotations,
-                       "ik_nodes": int(sum(v.sum() for _, v in rungs)), "breaks_without_collisions": breaks,
-                       "rows": int(len(motion.q)), "segments": int(len(np.unique(motion.segment))),
+    ctx.results["robot"] = rec.run("motion", lambda: stage("robot").run(ctx))
+    motion = ctx.results["robot"].motion
+    counts["robot"] = {"robot": ctx.settings.robot, "waypoints": len(rows), "layers": len(per_layer),
+                       "rotations": cell.rotations, "ik_nodes": int(sum(v.sum() for _, v in rungs)),
+                       "breaks_without_collisions": breaks, "rows": int(len(motion.q)),
+                       "segments": int(len(np.unique(motion.segment))),
                        "collision_checks": int(sum(s["collision_checks"] for s in motion.layers))}
-    return motion, tpd, cell, robot.family
 
 
 # ----------------------------------------------------------------------------- the suite
@@ -514,7 +526,7 @@ def markdown(result: dict[str, object]) -> str:
     if not any(c["model"] in TABLE_3_1 for c in cases):
         lines.append("| (no model of Table 3.1 in this suite) | | | | |")
 
-    lines += ["", "## Beside the authors' C++ code on a 2-core machine (DESIGN.md)", "", f"{AUTHORS_MACHINE}. "
+    lines += ["", "## Beside the authors' C++ code on a 2-core machine (../shared/DESIGN.md)", "", f"{AUTHORS_MACHINE}. "
               "Its voxel counts include a one-voxel shell its voxelizer adds. 'written' = layers whose trimmed "
               "surface is non-empty. Ratio = ours / theirs.", "",
               "| case (theirs) | voxels theirs / ours | peeling s theirs / ours (ratio) | growing s theirs / ours (ratio) "

@@ -110,7 +110,9 @@ def visible_planes(hull: Hull, new_points: np.ndarray) -> np.ndarray:
 def newly_inside(old: Hull, new: Hull, new_points: np.ndarray, x: np.ndarray, eps: float) -> np.ndarray:
     """Indices into ``x`` of points that are not inside ``old`` but are inside ``new`` =
     C(old ∪ new_points), testing only points beyond a removed facet of ``old`` (the only places
-    the hull grew) and within the box of those facets and the new points (DESIGN.md hint).
+    the hull grew: a point outside ``old`` can only enter C(old ∪ S) beyond a facet of ``old``
+    that S sees, since every other facet of ``old`` stays a facet of the new hull) and within the box of
+    those facets and the new points.
 
     The caller guarantees no point of ``x`` is inside ``old``."""
     vis = visible_planes(old, new_points)

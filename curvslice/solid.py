@@ -57,6 +57,8 @@ def read_mesh(path: str | Path) -> trimesh.Trimesh:
         )
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
+    except ImportError:
+        raise  # a missing package is not a bad mesh: the CLI names the package to install
     except Exception as exc:  # trimesh raises many types for garbage input
         raise CurvsliceError(f"{path}: not a readable {path.suffix[1:].upper()} mesh ({exc})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
@@ -148,10 +150,15 @@ def place(mesh: trimesh.Trimesh, up: str = "z", size: float | None = None,
     return m, scale
 
 
-def load_solid(path: str | Path, up: str = "z", size: float | None = None,
+def load_solid(path: str | Path | trimesh.Trimesh, up: str = "z", size: float | None = None,
                scale: float = 1.0) -> tuple[trimesh.Trimesh, LoadReport]:
-    """Read, repair and place a solid: the first stage of ``curvslice slice``."""
-    raw = read_mesh(path)
+    """Read (or take an in-memory mesh), repair and place a solid: the first stage of the pipeline."""
+    if isinstance(path, trimesh.Trimesh):
+        raw, path = path.copy(), "<in-memory mesh>"
+        if not len(raw.faces) or not np.isfinite(raw.vertices).all():
+            raise CurvsliceError("the mesh is empty or has non-finite vertex coordinates")
+    else:
+        raw = read_mesh(path)
     report = LoadReport(source=str(path), faces_in=len(raw.faces), vertices_in=len(raw.vertices), up=up)
     solid, report.repairs = repair(raw, name=str(path))
     solid, report.scale = place(solid, up=up, size=size, scale=scale)

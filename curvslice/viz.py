@@ -1,6 +1,7 @@
 """Seeing a slice: a meshcat 3D scene (browser or notebook) and headless matplotlib previews.
 
-Everything is read back from a slice folder (the files of DESIGN.md's contract), so the viewer shows
+Everything is read back from a slice folder (the output-folder contract: field.npz, layers/,
+toolpaths.npz, joints.csv, report.json), so the viewer shows
 what was written, not what a stage kept in memory:
 
 * the solid H (``solid.stl``) and the platform T (hull of ``platform_vertices``);

@@ -9,7 +9,7 @@ be trimmed back onto ∂H (§3.4.5). A voxel is occupied when
 Every point of H then lies in an occupied voxel: either its voxel's centre is inside, or the voxel
 holds points inside and outside H and therefore meets ∂H.
 
-Grid convention (DESIGN.md): voxel (i, j, k) is the box centred at ``origin + w*(i, j, k)``; the
+Grid convention (the ``field.npz`` contract): voxel (i, j, k) is the box centred at ``origin + w*(i, j, k)``; the
 z faces lie on multiples of w so row k = 0 sits on the platform top z = 0; one empty voxel of
 padding surrounds the model in x, y and above it.
 """

@@ -46,6 +46,7 @@ where G jumps; each layer is pushed clear of the one before (:func:`separate_fro
 from __future__ import annotations
 
 import itertools
+import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -737,7 +738,9 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
 
 
 def write_layers(outdir: str | Path, layers: list[trimesh.Trimesh]) -> list[Path]:
-    """Write ``layers/layer_0001.ply …`` (binary PLY, mm, model frame) into a slice folder."""
+    """Write ``layers/layer_0001.ply …`` (binary PLY, mm, model frame) into a slice folder, and
+    ``layers/layers.npz`` with the exact float64 vertices, faces and metadata of every layer (PLY stores
+    float32; the pipeline resumes from the exact arrays, :func:`load_layers`)."""
     folder = Path(outdir) / "layers"
     folder.mkdir(parents=True, exist_ok=True)
     for old in folder.glob("layer_*.ply"):
@@ -747,4 +750,24 @@ def write_layers(outdir: str | Path, layers: list[trimesh.Trimesh]) -> list[Path
         path = folder / f"layer_{i:04d}.ply"
         mesh.export(path, file_type="ply", encoding="binary")
         paths.append(path)
+    counts = np.array([[len(m.vertices), len(m.faces)] for m in layers], np.int64).reshape(-1, 2)
+    np.savez_compressed(
+        folder / "layers.npz", counts=counts,
+        vertices=np.concatenate([m.vertices for m in layers]) if layers else np.zeros((0, 3)),
+        faces=np.concatenate([m.faces for m in layers]) if layers else np.zeros((0, 3), np.int64),
+        metadata=np.str_(json.dumps([m.metadata for m in layers], default=float)))
     return paths
+
+
+def load_layers(outdir: str | Path) -> list[trimesh.Trimesh]:
+    """The layers exactly as :func:`write_layers` saved them (from ``layers/layers.npz``)."""
+    with np.load(Path(outdir) / "layers" / "layers.npz") as f:
+        counts, vertices, faces = f["counts"], f["vertices"], f["faces"]
+        metadata = json.loads(str(f["metadata"]))
+    v_at, f_at = np.r_[0, np.cumsum(counts[:, 0])], np.r_[0, np.cumsum(counts[:, 1])]
+    layers = []
+    for i, meta in enumerate(metadata):
+        mesh = trimesh.Trimesh(vertices[v_at[i]:v_at[i + 1]], faces[f_at[i]:f_at[i + 1]], process=False)
+        mesh.metadata.update(meta)
+        layers.append(mesh)
+    return layers

@@ -283,7 +283,8 @@ def test_thin_loop_is_one_centre_pass(monkeypatch):
     middle = (result.pieces[0][:, 0] > 2) & (result.pieces[0][:, 0] < 8)
     assert np.abs(result.pieces[0][middle, 1] - 0.65).max() < 0.1 * width  # on the centre line
     assert coverage >= 0.95 and overlap <= 0.05
-    monkeypatch.setattr("curvslice.toolpaths.thin_rise", lambda floor, width: 0.0)  # the loop itself
+    monkeypatch.setattr("curvslice.toolpaths.spirals.thin_rise", lambda floor, width: 0.0)  # the loop itself
+    monkeypatch.setattr("curvslice.toolpaths.rings.thin_rise", lambda floor, width: 0.0)
     _, (_, loop_overlap) = measure()
     # measured 0.17 before the floor's excess went over the layer's edge, 0.024 since; the centre pass 0
     assert loop_overlap > overlap + 0.01
@@ -364,7 +365,7 @@ def test_owners_track_nearest_pass_points_as_passes_come_and_go():
     and dropped."""
     from scipy.spatial import cKDTree
 
-    from curvslice.toolpaths import _Owners
+    from curvslice.toolpaths.beads import _Owners
     rng = np.random.default_rng(3)
     x = rng.uniform(0, 10, (4000, 3))
     passes = [rng.uniform(0, 10, (n, 3)) for n in (50, 7, 120, 3, 60)]
@@ -443,7 +444,7 @@ def test_contour_gap_spaces_the_passes_of_a_stepped_layer_a_width_apart_in_3d(mo
             return layer_cover(mesh, pos, ids, width, seed=1, bead=np.concatenate(result.widths))
         coverage, overlap = measure()
         assert coverage >= 0.97 and overlap <= 0.035
-        monkeypatch.setattr("curvslice.toolpaths.contour_gap", lambda *a: 1.0)
+        monkeypatch.setattr("curvslice.toolpaths.plan.contour_gap", lambda *a: 1.0)
         assert measure()[1] > overlap + 0.01
 
 
@@ -534,7 +535,7 @@ def test_fill_slivers_reaches_past_tips_without_new_overlap(monkeypatch):
         ids = np.repeat(np.arange(len(result.pieces)), [len(p) for p in result.pieces])
         return layer_cover(mesh, pos, ids, width, seed=1, bead=np.concatenate(result.widths))
     coverage, overlap = measure()
-    monkeypatch.setattr("curvslice.toolpaths.fill_slivers", lambda x, pieces, widths, w: widths)
+    monkeypatch.setattr("curvslice.toolpaths.beads.fill_slivers", lambda x, pieces, widths, w: widths)
     plain_coverage, plain_overlap = measure()
     assert coverage >= plain_coverage + 0.005
     assert overlap <= plain_overlap + 0.005

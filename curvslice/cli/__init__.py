@@ -2,7 +2,8 @@
 
 Each sub-command lives in its own module of this package exposing ``add_parser(subparsers)``
 and ``run(args) -> int``. A :class:`~curvslice.errors.CurvsliceError` (bad input, bad settings)
-is printed as one line on stderr with exit code 2; Ctrl-C exits with 130.
+is printed as one line on stderr with exit code 2, and so is a missing third-party package (with the
+``pip install`` that fixes it); Ctrl-C exits with 130.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import importlib
 import sys
 
 from curvslice import __version__
-from curvslice.errors import CurvsliceError
+from curvslice.errors import CurvsliceError, missing_package
 
 #: Sub-command modules of ``curvslice.cli``, in the order ``--help`` lists them.
 COMMANDS = ("slice", "verify", "convert", "level", "drape", "view", "bench")
@@ -37,10 +38,19 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     first = next((a for a in argv if not a.startswith("-")), None)
-    parser = build_parser(first if first in COMMANDS else None)
+    try:
+        parser = build_parser(first if first in COMMANDS else None)
+    except ImportError as exc:  # a command module's third-party import
+        print(f"curvslice: error: {missing_package(exc)}", file=sys.stderr)
+        return 2
     args = parser.parse_args(argv)
     try:
         return int(args.run(args) or 0)
+    except ImportError as exc:
+        if (exc.name or "").split(".")[0] == "curvslice":
+            raise  # our own packaging bug: keep the traceback
+        print(f"curvslice {args.command}: error: {missing_package(exc)}", file=sys.stderr)
+        return 2
     except CurvsliceError as exc:
         print(f"curvslice {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -1,0 +1,359 @@
+"""Beads: every pass centred in the strip of surface nearest to it, with a bead as wide as that
+strip (the passes tile the layer despite uneven spacing, thesis §3.7), redundant slivers and dots
+dropped, beads widened over what the fit leaves past tips and corners."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import trimesh
+from scipy.spatial import cKDTree
+
+from curvslice.toolpaths.constants import (BEAD_RANGE, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
+                                           OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS)
+from curvslice.toolpaths.passes import gap_passes
+from curvslice.toolpaths.resampling import resample
+from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
+
+
+def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, passes: list[np.ndarray],
+                width: float, min_bead: Callable[[np.ndarray], np.ndarray] | None,
+                fill_gaps: bool) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+    """The beads of one layer's ``passes`` over ``surface`` (its bridged, possibly subdivided mesh
+    ``vertices``/``faces`` for the gap search): every pass fitted to its strip (:func:`fit_beads`),
+    :func:`gap_passes` through what even the widest beads leave open when ``fill_gaps`` (then all
+    refitted), redundant pieces dropped and the others refitted over their strips
+    (:func:`needed_pieces`; without take-over when a refit falls short), beads widened over the
+    slivers (:func:`fill_slivers`). Returns the pieces, their per-vertex bead widths (mm) and how
+    many gap passes were kept."""
+    samples = surface_samples(surface, width)
+    owners = _Owners(samples[0], [resample(p, FIT_STEP * width) for p in passes])
+    pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
+    fill = gap_passes(vertices, faces, pieces, width, widths) if fill_gaps and len(faces) else []
+    if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
+        owners.add([resample(p, FIT_STEP * width) for p in fill])
+        pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
+    is_gap = np.arange(len(pieces)) >= len(pieces) - len(fill)
+    needed = needed_pieces(pieces, widths, width, samples[0], is_gap, take_over=True)
+    if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
+        kept = owners.kept(needed)
+        refit = _fit_owned(surface, samples, kept, width, min_bead)
+        label = piece_labels(pieces)
+        orphans = samples[0][~np.isin(label[owners.j], needed)]
+        if _faults(orphans, *refit, width) - _faults(orphans, pieces, widths, width) > MINOR_SHARE * len(samples[0]):
+            # a refitted bead fell short of what it was to take over (a corner, a pass end)
+            needed = needed_pieces(pieces, widths, width, samples[0], is_gap, take_over=False)
+            kept = owners.kept(needed)
+            refit = _fit_owned(surface, samples, kept, width, min_bead)
+        pieces, widths = refit
+    widths = fill_slivers(samples[0], pieces, widths, width)
+    return pieces, widths, int(is_gap[needed].sum())
+
+
+def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, how: str) -> np.ndarray:
+    """Running max, min, mean or sum of ``values`` over ``±half`` entries, never across the pieces
+    whose entries run from ``start`` to ``stop`` (exclusive), one pair per entry."""
+    i = np.arange(len(values))
+    lo, hi = np.maximum(i - half, start), np.minimum(i + half + 1, stop)
+    if how in ("mean", "sum"):
+        c = np.r_[0.0, np.cumsum(values)]
+        return (c[hi] - c[lo]) / (hi - lo if how == "mean" else 1)
+    pick, none = (np.maximum, -np.inf) if how == "max" else (np.minimum, np.inf)
+    out = values.copy()
+    for k in range(1, half + 1):  # half is a handful of entries
+        out = pick(out, np.where(i - k >= lo, values[np.maximum(i - k, 0)], none))
+        out = pick(out, np.where(i + k < hi, values[np.minimum(i + k, len(values) - 1)], none))
+    return out
+
+
+def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: float,
+                  samples: np.ndarray, gap: np.ndarray | None = None, take_over: bool = True) -> list[int]:
+    """Indices of the pieces to keep: a piece shorter than ``REDUNDANT_LENGTH`` widths is dropped when
+    more of the surface ``samples`` (points, evenly spread) under its bead lie under other kept
+    beads than under its own alone -- it would add more overlap than coverage. Typical of the
+    slivers and dots of tiny layers, where every bead is at least as wide as the layer is thick;
+    the kept neighbours are refitted over what it leaves. A short gap pass (``gap``: a mask of
+    the pieces) is also dropped when what it alone covers is under ``MINOR_SHARE`` of the layer: a
+    jump is not worth that. With ``take_over``, samples under its bead alone do not count for it
+    where the nearest other kept pass can take them over once refitted: its bead, grown towards
+    them by a shift of at most half a width, stays within the widest bead (``BEAD_RANGE``) --
+    the caller checks the refit (:func:`_faults`). Shortest first."""
+    keep = list(range(len(pieces)))
+    length = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pieces]
+    short = [k for k in sorted(keep, key=lambda i: length[i]) if length[k] < REDUNDANT_LENGTH * width]
+    if not short or len(pieces) < 2 or len(samples) == 0:
+        return keep
+    pts = np.vstack(pieces)
+    label = piece_labels(pieces)
+    half = 0.5 * np.concatenate(widths)
+    # the samples under the short beads, and every piece whose bead covers each of them
+    counts = np.array([len(p) for p in pieces])
+    stop = np.cumsum(counts)
+    own = concat_ranges(stop[short] - counts[short], counts[short])
+    reach = float(half.max())
+    short_tree = cKDTree(pts[own])
+    close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=-1)[0]))[0]
+    under = short_tree.sparse_distance_matrix(cKDTree(samples[close]), reach, output_type="coo_matrix")
+    near = close[np.unique(under.col[under.data <= half[own][under.row]])]
+    if len(near) == 0:
+        return keep
+    widest = BEAD_RANGE[1] * width
+    hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), max(reach, widest), output_type="coo_matrix")
+    # the nearest point of every piece within the widest bead of each sample
+    code = hits.row * len(pieces) + label[hits.col]
+    first = np.lexsort((hits.data, code))
+    first = first[np.r_[True, code[first][1:] != code[first][:-1]]]
+    first = first[np.lexsort((hits.data[first], hits.row[first]))]  # by sample, nearest piece first
+    row, piece_of, gap_of, half_of = hits.row[first], label[hits.col[first]], hits.data[first], half[hits.col[first]]
+    inside = gap_of <= half_of
+    pair = row[inside] * len(pieces) + piece_of[inside]  # (sample, covering piece), unique
+    by_piece = np.argsort(pair % len(pieces), kind="stable")
+    sample, piece = pair[by_piece] // len(pieces), pair[by_piece] % len(pieces)
+    bounds = np.searchsorted(piece, np.arange(len(pieces) + 1))
+    count = np.bincount(sample, minlength=len(near))
+    kept = np.ones(len(pieces), bool)
+    row_bounds = np.searchsorted(row, np.arange(len(near) + 1))  # each sample's block of (piece, distance)
+    for k in short:
+        if len(keep) == 1:
+            break
+        mine = sample[bounds[k]:bounds[k + 1]]
+        alone = mine[count[mine] == 1]
+        # what the nearest other kept pass takes over once refitted: its bead grows towards the
+        # sample, up to the widest bead and by a shift of at most half a width
+        block = concat_ranges(row_bounds[alone], row_bounds[alone + 1] - row_bounds[alone])
+        block = block[(piece_of[block] != k) & kept[piece_of[block]]]
+        o_row, o_gap, o_half = row[block], gap_of[block], half_of[block]
+        nearest = np.r_[True, o_row[1:] != o_row[:-1]] if len(o_row) else np.zeros(0, bool)
+        taken = (o_gap + o_half <= widest) & (o_gap <= 2.0 * MAX_SHIFT * width + o_half) & take_over
+        only = len(alone) - int(np.sum(taken[nearest]))
+        if len(mine) - len(alone) >= only or (gap is not None and gap[k] and only < MINOR_SHARE * len(samples)):
+            keep.remove(k)
+            kept[k] = False
+            count[mine] -= 1
+    return keep
+
+
+def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
+              min_bead: Callable[[np.ndarray], np.ndarray] | None = None,
+              samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Centre every pass in the strip of surface nearest to it and make its bead as wide as that
+    strip (thesis §3.7: the gaps and overlaps that iso-distance spirals leave where their
+    contours meet or bunch up; the width is set through the extrusion, as the thesis compensates
+    the layer thickness through the feed).
+
+    The passes are re-sampled every ``FIT_STEP`` widths; every surface sample (a lattice, one per
+    ``FIT_SAMPLE`` w², plus the boundary every ``FIT_STEP`` widths) belongs to its nearest pass
+    point and lies on its left or right (by the layer normal × tangent), at its 3D distance off
+    the pass. A point's extent to either side -- the farthest sample it owns, closed (running max
+    then min over ``±FIT_HALF`` points), scaled by (k+1)/k for k samples, averaged over
+    ``±FIT_HALF`` points so the bead changes smoothly, plus ``FIT_MARGIN`` -- gives the bead
+    ``e_l + e_r`` and a shift ``(e_l - e_r)/2`` sideways, so the bead lies over its strip: the beads
+    tile the layer instead of overlapping by the spacing error. Beads stay within
+    ``BEAD_RANGE`` widths and never narrower than ``min_bead`` (the local layer thickness: a bead
+    is at least as wide as it is high). A pass end also owns what lies ahead of it and is
+    lengthened until its round end reaches that far. Where the floor makes a bead wider than its
+    strip and one side of the strip is the layer's edge, the excess goes over that edge instead of
+    over the neighbour. Returns the fitted pieces and their per-vertex bead widths (mm).
+    ``samples`` (points, normals, edge mask) of :func:`surface_samples` may be passed in when
+    several fits share one surface.
+    """
+    fine = [resample(p, FIT_STEP * width) for p in pieces]
+    fine = [p for p in fine if len(p) >= 2]
+    if not fine or surface.area <= 0:
+        return fine, [np.full(len(p), width) for p in fine]
+    samples = samples if samples is not None else surface_samples(surface, width)
+    return _fit_owned(surface, samples, _Owners(samples[0], fine), width, min_bead)
+
+
+def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray, np.ndarray], owners: _Owners, width: float,
+               min_bead: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`fit_beads` of the passes ``owners`` holds (already sampled every ``FIT_STEP``
+    widths, with the samples' nearest points); unfitted, one width, without any surface."""
+    if not owners.fine or surface.area <= 0:
+        return owners.fine, [np.full(len(p), width) for p in owners.fine]
+    return _fit_strips(samples[0], samples[1], owners.fine, width, min_bead, owners.j, samples[2])
+
+
+class _Owners:
+    """The nearest pass point of every surface sample ``x`` (index into the stacked ``fine``
+    passes) while passes are added and dropped: the nearest of the remaining passes stays the
+    nearest, so only the new passes or the orphaned samples are searched (one KD query each)."""
+
+    def __init__(self, x: np.ndarray, fine: list[np.ndarray]):
+        self.x, self.fine = x, []
+        self.d, self.j = np.full(len(x), np.inf), np.zeros(len(x), np.int64)
+        self.add(fine)
+
+    def add(self, fine: list[np.ndarray]) -> None:
+        if fine and len(self.x):
+            d, j = cKDTree(np.vstack(fine)).query(self.x, workers=-1)
+            better = d < self.d
+            self.d[better], self.j[better] = d[better], sum(len(p) for p in self.fine) + j[better]
+        self.fine = self.fine + list(fine)
+
+    def kept(self, indices: list[int]) -> "_Owners":
+        """The owners once only the passes ``indices`` remain (this one unchanged)."""
+        counts = np.array([len(p) for p in self.fine], np.int64)
+        start = np.cumsum(counts) - counts
+        renumber = np.full(int(counts.sum()), -1, np.int64)
+        renumber[concat_ranges(start[indices], counts[indices])] = np.arange(counts[indices].sum())
+        out = _Owners(self.x, [])
+        out.fine, out.d, out.j = [self.fine[i] for i in indices], self.d.copy(), renumber[self.j]
+        orphan = np.nonzero(out.j < 0)[0]
+        if len(orphan):
+            out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=-1)
+        return out
+
+
+def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> int:
+    """How many of the points ``x`` are open (farther than ``OPEN_GAP - 0.5`` widths beyond every
+    bead, as :func:`gap_passes` has it) or under the beads of two pieces or more (``widths``: the
+    pieces' vertex bead widths; sampled every ``FIT_STEP`` widths, as the fits' lengthened ends
+    are not)."""
+    if not pieces:
+        return len(x)
+    dense = [resample(np.c_[p, b], FIT_STEP * width) for p, b in zip(pieces, widths)]
+    label = piece_labels(dense)
+    dense = np.vstack(dense)
+    pts, half = dense[:, :3], 0.5 * dense[:, 3]
+    tree = cKDTree(pts)
+    d, j = tree.query(x, workers=-1)
+    near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="coo_matrix")
+    inside = near.data <= half[near.col]
+    beads = np.bincount(np.unique(near.row[inside] * len(pieces) + label[near.col[inside]]) // len(pieces),
+                        minlength=len(x))
+    return int(np.sum((d > half[j] + (OPEN_GAP - 0.5) * width) | (beads > 1)))
+
+
+def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> list[np.ndarray]:
+    """Bead widths (one array per piece) widened over the slivers the fit leaves: surface samples
+    ``x`` at most ``OPEN_GAP - 0.5`` widths beyond every bead (farther is open, for
+    :func:`gap_passes`) -- past a tip or a corner, where the fitted extent is a running mean. The
+    nearest pass point's bead grows to reach them, short of the bead of any other pass (another
+    piece, or the same piece more than two beads away along it: a spiral's next ring), and within
+    the widest bead (``BEAD_RANGE``)."""
+    if not pieces or not len(x):
+        return widths
+    pts, half = np.vstack(pieces), 0.5 * np.concatenate(widths)
+    label = piece_labels(pieces)
+    key = np.concatenate([np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))] for p in pieces])
+    tree = cKDTree(pts)
+    d, j = tree.query(x, workers=-1)
+    sliver = (d > half[j]) & (d <= half[j] + (OPEN_GAP - 0.5) * width)
+    if not sliver.any():
+        return widths
+    owners = np.unique(j[sliver])
+    want = np.zeros(len(pts))
+    np.maximum.at(want, j[sliver], d[sliver])
+    # the edge of the nearest bead of another pass (another piece, or the same one more than two
+    # beads along it) bounds the growth
+    pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(want.max() + half.max()), output_type="coo_matrix")
+    owner, other = owners[pairs.row], pairs.col
+    far = (label[other] != label[owner]) | (np.abs(key[other] - key[owner])
+                                            > SAME_PASS_BEADS * np.maximum(width, 2.0 * half[other]))
+    limit = np.full(len(pts), np.inf)
+    np.minimum.at(limit, owner[far], pairs.data[far] - half[other[far]])
+    grown = half.copy()
+    grown[owners] = np.clip(np.minimum(want[owners], limit[owners] - FIT_MARGIN * width), half[owners],
+                            0.5 * BEAD_RANGE[1] * width)
+    return np.split(2.0 * grown, np.cumsum([len(p) for p in pieces])[:-1])
+
+
+def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    """Largest of ``values`` per ``index`` in ``range(n)``, at least 0 (``np.maximum.at``, sorted)."""
+    out = np.zeros(n)
+    if len(index):
+        order = np.argsort(index, kind="stable")
+        idx = index[order]
+        starts = np.r_[0, np.nonzero(np.diff(idx))[0] + 1]
+        out[idx[starts]] = np.maximum(np.maximum.reduceat(values[order], starts), 0.0)
+    return out
+
+
+def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points of ``surface`` on a barycentric lattice of each triangle, about one per
+    ``FIT_SAMPLE`` w² (even, unlike random samples: no voids to under-estimate a strip by), and
+    on its boundary every ``FIT_STEP`` widths, with the normals of their triangles and a mask
+    of the boundary ones."""
+    tri = surface.triangles
+    order = np.maximum(np.ceil(np.sqrt(2.0 * surface.area_faces / (FIT_SAMPLE * width**2))), 1).astype(np.int64)
+    points, normals = [], []
+    for m in np.unique(order):
+        faces = np.nonzero(order == m)[0]
+        i, j = np.triu_indices(m + 1)
+        bary = np.c_[m - j, j - i, i] / m  # (m+1)(m+2)/2 lattice points, the corners and edges included
+        points.append(np.einsum("pk,fkd->fpd", bary, tri[faces]).reshape(-1, 3))
+        normals.append(np.repeat(surface.face_normals[faces], len(bary), axis=0))
+    edges = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
+    if len(edges):
+        a, b = surface.vertices[surface.edges[edges, 0]], surface.vertices[surface.edges[edges, 1]]
+        k = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / (FIT_STEP * width)), 1).astype(np.int64)
+        e = run_labels(k)
+        u = run_offsets(k) / k[e]
+        points.append(a[e] + u[:, None] * (b[e] - a[e]))
+        normals.append(surface.face_normals[surface.edges_face[edges][e]])
+    points = np.vstack(points)
+    edge = np.zeros(len(points), bool)
+    edge[len(points) - (int(k.sum()) if len(edges) else 0):] = True
+    return points, np.vstack(normals), edge
+
+
+def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: float,
+                min_bead: Callable[[np.ndarray], np.ndarray] | None,
+                j: np.ndarray, edge: np.ndarray) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """:func:`fit_beads` on passes sampled every ``FIT_STEP`` widths and surface samples ``x``
+    (triangle normals ``xn``; ``j`` the nearest pass point of each, :class:`_Owners`; ``edge``
+    the samples on the layer's boundary): the shifted passes and their beads."""
+    counts = np.array([len(p) for p in fine])
+    pts = np.vstack(fine)
+    n = len(pts)
+    stop = np.cumsum(counts)
+    start = stop - counts
+    owner = run_labels(counts)
+    lo, hi = start[owner], stop[owner]
+    i = np.arange(n)
+    tan = pts[np.minimum(i + 1, hi - 1)] - pts[np.maximum(i - 1, lo)]
+    tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
+    first, last = i == lo, i == hi - 1
+
+    normal = np.stack([np.bincount(j, weights=xn[:, c], minlength=n) for c in range(3)], axis=1)
+    normal = np.stack([_window(normal[:, c], lo, hi, 2 * FIT_HALF, "mean") for c in range(3)], axis=1)
+    side = np.cross(normal, tan)
+    norm = np.linalg.norm(side, axis=1, keepdims=True)
+    side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-300), 0.0)
+
+    off = x - pts[j]
+    along = np.einsum("ij,ij->i", off, tan[j])
+    # distance off the pass in 3D (the chord across a curved strip, as the bead must reach),
+    # on the side the layer's tangent plane puts it
+    left = np.einsum("ij,ij->i", off, side[j]) >= 0
+    lateral = np.linalg.norm(off - along[:, None] * tan[j], axis=1) * np.where(left, 1.0, -1.0)
+    extent = np.stack([_group_max(j[left], lateral[left], n), _group_max(j[~left], -lateral[~left], n)])
+    owned = np.stack([np.bincount(j[left], minlength=n), np.bincount(j[~left], minlength=n)]).astype(np.float64)
+    reach = _group_max(j, np.where(last[j], along, np.where(first[j], -along, 0.0)), n)  # ahead of an end
+    # the farthest of k samples spread evenly over [0, e] lies at e·k/(k+1) on average
+    # closing (running max, then min): fills the dips where no sample happened to lie near the
+    # strip's edge without spreading a wide stretch into a narrow one; the farthest of k samples
+    # spread evenly over [0, e] lies at e·k/(k+1); a running mean smooths the bead
+    closed = [_window(_window(e, lo, hi, FIT_HALF, "max"), lo, hi, FIT_HALF, "min") for e in extent]
+    ends = first | last  # a pass end keeps the extent of all it owns (its cap, not to be eroded)
+    extent = np.stack([np.where(ends, np.maximum(m, e), m) for m, e in zip(
+        [_window(e * (1 + 1 / np.maximum(_window(c, lo, hi, FIT_HALF, "sum"), 1)), lo, hi, FIT_HALF, "mean")
+         for e, c in zip(closed, owned)], extent)]) + FIT_MARGIN * width
+    floor = np.full(n, BEAD_RANGE[0] * width)
+    if min_bead is not None:
+        floor = np.clip(min_bead(pts), floor, BEAD_RANGE[1] * width)
+    bead = np.clip(extent.sum(axis=0), floor, BEAD_RANGE[1] * width)
+    # a bead wider than its strip (the floor) spills over the layer's edge where it has one
+    spill = np.stack([_window(np.bincount(j[s & edge], minlength=n).astype(np.float64), lo, hi, FIT_HALF, "max") > 0
+                      for s in (left, ~left)])
+    excess = np.maximum(bead - extent.sum(axis=0), 0.0)
+    shift = np.clip(0.5 * (extent[0] - extent[1]) + 0.5 * excess * (spill[0].astype(float) - spill[1]),
+                    -MAX_SHIFT * width, MAX_SHIFT * width)
+    pts = pts + shift[:, None] * side
+    grow = np.maximum(reach - 0.5 * bead, 0.0)
+    pts[first] -= grow[first, None] * tan[first]
+    pts[last] += grow[last, None] * tan[last]
+    return np.split(pts, stop[:-1]), np.split(bead, stop[:-1])
+

@@ -1,0 +1,187 @@
+"""Passes that are not contours: ridge passes of thin walls and gap passes through what the
+spirals leave open (thesis §3.7, the medial-axis gaps), and the removal of self-crossings."""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.spatial import cKDTree
+
+from curvslice.geodesic import edge_keys
+from curvslice.toolpaths.constants import (BEAD_MIN, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
+                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, OPEN_GAP, RIDGE_FLOOR,
+                                           RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
+from curvslice.toolpaths.resampling import resample
+
+
+def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
+                width: float) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Passes along the ridge of each connected region narrower than ``2·THIN_REGION`` widths.
+
+    Closes the medial-axis gap of thin walls (thesis §3.7) by varying the bead width through the
+    extrusion amount: the ridge of the boundary distance ``d`` is the region's centre line and
+    ``2·d`` there (the largest ``d`` within half a width) its local width, the bead it needs (clamped to
+    ``[BEAD_MIN, 2·THIN_REGION]`` widths; :func:`fit_beads` sets the final one). A ridge is the longest of the shortest paths over mesh
+    edges weighted by ``length / d²`` (cheap along the ridge); branches it leaves open (vertices
+    more than a quarter width beyond half a bead of it) get their own ridges, up to ``BRANCH_ROUNDS`` rounds. Returns the faces of the other regions and the passes.
+    """
+    f = np.asarray(faces, np.int64)
+    n = len(vertices)
+    pairs = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    code = np.unique(edge_keys(pairs[:, 0], pairs[:, 1], n))
+    edges = np.c_[code // n, code % n]
+    graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    top = np.full(label.max() + 1, np.inf)
+    finite = np.isfinite(dist)
+    top[np.unique(label[finite])] = -np.inf
+    np.maximum.at(top, label[finite], dist[finite])
+    thin_label = np.nonzero(top < THIN_REGION * width)[0]
+    passes, widths = [], []
+    if len(thin_label) == 0:
+        return f, passes
+    thin_v = np.nonzero(np.isin(label, thin_label))[0]  # the thin regions' own graph (small)
+    e = np.searchsorted(thin_v, edges[np.isin(label[edges[:, 0]], thin_label)])
+    mid = np.maximum(0.5 * (dist[thin_v[e[:, 0]]] + dist[thin_v[e[:, 1]]]), RIDGE_FLOOR * width)
+    cost = np.linalg.norm(vertices[thin_v[e[:, 0]]] - vertices[thin_v[e[:, 1]]], axis=1) / mid**2
+    weighted = sp.coo_matrix((cost, (e[:, 0], e[:, 1])), shape=(len(thin_v),) * 2).tocsr()
+    weighted = weighted + weighted.T
+    done = []
+    for c in thin_label:
+        todo = np.nonzero(label[thin_v] == c)[0]
+        mine = len(passes)
+        for _ in range(BRANCH_ROUNDS):
+            if len(todo) < 3:
+                break
+            sub = weighted[todo][:, todo]
+            n_patch, patch = connected_components(sub, directed=False)
+            for k in range(n_patch):
+                members = todo[patch == k]
+                if len(members) < 3:
+                    continue
+                ridge = thin_v[members[_longest_path(weighted[members][:, members])]]
+                pts = vertices[ridge].copy()
+                if len(passes) == mine and np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() < WALL_LENGTH * width:
+                    break  # a blob, not a wall: the contours print it
+                if len(pts) > 2:
+                    pts[1:-1] = (pts[:-2] + pts[1:-1] + pts[2:]) / 3.0  # the edge path's zigzag smoothed
+                near = cKDTree(pts).sparse_distance_matrix(cKDTree(vertices[thin_v[members]]), RIDGE_REACH * width,
+                                                           output_type="coo_matrix")
+                half = dist[ridge].copy()  # the ridge of d near each point: an edge path runs beside it
+                np.maximum.at(half, near.row, dist[thin_v[members[near.col]]])
+                passes.append(pts)
+                widths.append(np.clip(2.0 * half, BEAD_MIN * width, 2.0 * THIN_REGION * width))
+            if len(passes) == mine:
+                break
+            done.append(c)
+            dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(passes[mine:], widths[mine:])])
+            gap, nearest = cKDTree(dense[:, :3]).query(vertices[thin_v[todo]])
+            todo = todo[gap > 0.5 * dense[nearest, 3] + BRANCH_MARGIN * width]
+    keep = ~np.isin(label[f[:, 0]], done)
+    return f[keep], passes
+
+
+def _longest_path(graph: sp.csr_matrix) -> np.ndarray:
+    """Node indices of the longest shortest path found by two Dijkstra sweeps."""
+    d0 = dijkstra(graph, indices=0)
+    far = int(np.argmax(np.where(np.isfinite(d0), d0, -1)))
+    d1, pred = dijkstra(graph, indices=far, return_predecessors=True)
+    node = int(np.argmax(np.where(np.isfinite(d1), d1, -1)))
+    chain = [node]
+    while pred[node] >= 0:
+        node = int(pred[node])
+        chain.append(node)
+    return np.asarray(chain)
+
+
+def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray], width: float,
+               widths: list[np.ndarray] | None = None, min_vertices: int = GAP_PASS_VERTICES) -> list[np.ndarray]:
+    """Extra passes through what the spirals leave open: narrow strips (thinner than a bead, where
+    no contour exists) and the medial-axis gaps between contour families (thesis §3.7).
+
+    Vertices more than ``OPEN_GAP - 0.5`` widths beyond the edge of every bead (``widths``: each piece
+    vertex's bead, default ``width``) form connected patches; each patch at least
+    ``min_vertices`` vertices and half a width long -- down to the tips of a layer that its outermost
+    contour cuts short -- gets one pass along its longest shortest path (two Dijkstra sweeps on its
+    mesh edges), which runs down the middle of a strip. (:func:`needed_pieces` then drops those
+    that add more overlap than coverage.)
+    """
+    v = np.asarray(vertices, np.float64)
+    if not pieces:
+        open_v = np.ones(len(v), bool)
+    else:
+        widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
+        dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(pieces, widths)])
+        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
+        open_v = gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
+    ring = np.roll(faces, -1, axis=1)
+    inside = open_v[faces] & open_v[ring]
+    code = np.unique(edge_keys(faces[inside], ring[inside], len(v)))
+    edges = np.c_[code // len(v), code % len(v)]
+    if len(edges) == 0:
+        return []
+    length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
+    graph = sp.coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(len(v), len(v))).tocsr()
+    graph = graph + graph.T
+    n_comp, label = connected_components(graph, directed=False)
+    sizes = np.bincount(label[open_v], minlength=n_comp)
+    passes = []
+    for c in np.nonzero(sizes >= min_vertices)[0]:
+        members = np.nonzero((label == c) & open_v)[0]
+        chain = members[_longest_path(graph[members][:, members])]
+        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= GAP_PASS_LENGTH * width:
+            passes.append(v[chain])
+    return passes
+
+
+def uncross(piece: np.ndarray, width: float, rounds: int = UNCROSS_ROUNDS) -> np.ndarray:
+    """Order of a piece's points without the places where it crosses itself (2-opt: reverse the
+    stretch between two crossing segments, so their ends are joined the other way round; the
+    path stays one piece over the same points and gets shorter, so this ends).
+
+    Contour arcs never cross each other; the links between them -- from ring to ring, into a
+    spliced child spiral -- can, where the cuts of neighbouring rings drift apart (Zhao et al.
+    2016 align them on one cut line) or once :func:`fit_beads` has moved the passes sideways.
+    Two segments cross when they come within ``CROSS_GAP`` widths of each other at inner points,
+    more than ``CROSS_ANGLE`` apart. Crossings whose stretches do not overlap are undone in the same round.
+    """
+    order = np.arange(len(piece))
+    for _ in range(rounds):
+        p = np.asarray(piece, np.float64)[order]
+        if len(p) < 4:
+            return order
+        a, b = p[:-1], p[1:]
+        length = np.linalg.norm(b - a, axis=1)
+        mid = 0.5 * (a + b)
+        tree = cKDTree(mid)
+        typical = float(np.percentile(length, CROSS_PERCENTILE)) + 1e-9
+        pairs = [tree.query_pairs(typical, output_type="ndarray")]
+        for k in np.nonzero(length > typical)[0]:  # the few long links, against everything near
+            near = np.asarray(tree.query_ball_point(mid[k], 0.5 * (length[k] + length.max()) + 1e-9), np.int64)
+            pairs.append(np.c_[np.full(len(near), k), near])
+        pairs = np.vstack(pairs)
+        i, j = pairs.min(axis=1), pairs.max(axis=1)
+        keep = j > i + 1
+        i, j = i[keep], j[keep]
+        if len(i) == 0:
+            return order
+        u, v, w0 = b[i] - a[i], b[j] - a[j], a[i] - a[j]
+        uu, uv, vv = np.einsum("ij,ij->i", u, u), np.einsum("ij,ij->i", u, v), np.einsum("ij,ij->i", v, v)
+        uw, vw = np.einsum("ij,ij->i", u, w0), np.einsum("ij,ij->i", v, w0)
+        den = uu * vv - uv * uv
+        with np.errstate(all="ignore"):
+            s = np.clip((uv * vw - vv * uw) / den, 0, 1)
+            t = np.clip((uu * vw - uv * uw) / den, 0, 1)
+        gap = np.linalg.norm(w0 + s[:, None] * u - t[:, None] * v, axis=1)
+        sin = np.sqrt(np.maximum(den, 0)) / np.maximum(np.sqrt(uu * vv), 1e-300)
+        hit = (gap < CROSS_GAP * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(CROSS_ANGLE))
+        if not hit.any():
+            return order
+        last = -2
+        for a_k, b_k in sorted(zip(i[hit].tolist(), j[hit].tolist())):  # crossings whose stretches
+            if a_k > last:  # do not overlap are undone in the same round
+                order[a_k + 1:b_k + 1] = order[a_k + 1:b_k + 1][::-1].copy()
+                last = b_k + 1
+    return order
+

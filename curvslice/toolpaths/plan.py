@@ -1,0 +1,341 @@
+"""Tool-paths of every layer (thesis §3.5.1-3.5.2): the per-layer pipeline, orientations,
+thickness and extrusion, and the ``toolpaths.npz`` / ``toolpaths.gcode`` files."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from time import perf_counter
+
+import numpy as np
+import scipy.sparse as sp
+import trimesh
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from curvslice import orientation as ori
+from curvslice.errors import CurvsliceError
+from curvslice.exporters.gcode6 import write_gcode6
+from curvslice.geodesic import boundary_distance, edge_keys
+from curvslice.toolpaths.beads import layer_beads
+from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, SUBDIVIDE_EDGE,
+                                           THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
+from curvslice.toolpaths.passes import thin_passes, uncross
+from curvslice.toolpaths.resampling import extrusion_amounts, resample
+from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands
+from curvslice.toolpaths.spirals import connected_spirals
+from curvslice.toolpaths.stacked import piece_labels
+
+
+@dataclass
+class LayerPaths:
+    """Tool-path pieces of one layer (polylines, print order), each vertex's bead width (mm),
+    and how they were made."""
+
+    pieces: list[np.ndarray]
+    widths: list[np.ndarray] = field(default_factory=list)
+    thin_passes: int = 0  #: ridge passes of thin walls (bead as wide as the wall)
+    rings: int = 0
+    regions: int = 0
+    splices: int = 0
+    failed_splices: int = 0
+    closed_components: int = 0
+    gap_passes: int = 0  #: passes through what the others leave open, kept after needed_pieces
+    bridged_holes: int = 0
+    travel: float = 0.0
+    max_distance: float = 0.0
+
+    @property
+    def jumps(self) -> int:
+        return max(len(self.pieces) - 1, 0)
+
+
+
+def clean_surface(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """Merge duplicate vertices and drop degenerate or repeated triangles (no other change)."""
+    m = trimesh.Trimesh(np.asarray(mesh.vertices, np.float64).reshape(-1, 3), np.asarray(mesh.faces, np.int64).reshape(-1, 3),
+                        process=True, validate=False)
+    m.update_faces(m.nondegenerate_faces(height=1e-9))
+    m.update_faces(m.unique_faces())
+    m.remove_unreferenced_vertices()
+    return m
+
+
+def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """Close boundary loops shorter than ``max_perimeter`` by a triangle fan to their centroid.
+
+    Pin-holes of a contoured, trimmed layer (a voxel wide) would each become a source of the
+    boundary distance and break the spirals into fragments; a bead bridges them instead.
+    Returns the new vertices and faces and the number of holes closed.
+    """
+    f = np.asarray(faces, np.int64)
+    directed = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    n_v = int(f.max()) + 1 if len(f) else 1
+    _, inverse, counts = np.unique(edge_keys(directed[:, 0], directed[:, 1], n_v), return_inverse=True,
+                                   return_counts=True)
+    border = directed[counts[inverse.ravel()] == 1]
+    if len(border) == 0:
+        return vertices, f, 0
+    n = len(vertices)
+    graph = sp.coo_matrix((np.ones(len(border)), (border[:, 0], border[:, 1])), shape=(n, n))
+    _, loop = connected_components(graph, directed=False)
+    loop_of_edge = loop[border[:, 0]]
+    length = np.linalg.norm(vertices[border[:, 0]] - vertices[border[:, 1]], axis=1)
+    perimeter = np.bincount(loop_of_edge, weights=length)
+    # the longest loop of each connected piece is its outer boundary, never a hole
+    mesh_graph = sp.coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(n, n))
+    _, piece = connected_components(mesh_graph, directed=False)
+    loops = np.unique(loop_of_edge)
+    first_edge = np.zeros(len(perimeter), np.int64)
+    first_edge[loop_of_edge[::-1]] = np.arange(len(border))[::-1]
+    loop_piece = piece[border[first_edge[loops], 0]]
+    outer = np.zeros(len(perimeter), bool)
+    order = np.lexsort((-perimeter[loops], loop_piece))
+    first_of_piece = np.r_[True, loop_piece[order][1:] != loop_piece[order][:-1]]
+    outer[loops[order][first_of_piece]] = True
+    small = np.nonzero((perimeter > 0) & (perimeter < max_perimeter) & ~outer)[0]
+    if len(small) == 0:
+        return vertices, f, 0
+    pick = np.isin(loop_of_edge, small)
+    new_index = np.full(len(perimeter), -1)
+    new_index[small] = n + np.arange(len(small))
+    counts_v = np.bincount(loop_of_edge[pick], minlength=len(perimeter))[small]
+    centres = np.stack([np.bincount(loop_of_edge[pick], weights=vertices[border[pick, 0], i],
+                                    minlength=len(perimeter))[small] for i in range(3)], axis=1) / counts_v[:, None]
+    fan = np.c_[border[pick, 1], border[pick, 0], new_index[loop_of_edge[pick]]]
+    return np.vstack([vertices, centres]), np.vstack([f, fan]), len(small)
+
+
+def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
+                fill_gaps: bool = True, min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerPaths:
+    """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
+    :func:`gap_passes` through what they leave open when ``fill_gaps``. Holes narrower than
+    ``BRIDGE_HOLE`` widths are bridged (:func:`bridge_small_holes`); a mesh coarser than ``SUBDIVIDE_EDGE`` widths
+    is subdivided once (1 → 4 triangles) so the distance field and contours resolve the passes.
+    Regions narrower than ``2·THIN_REGION`` widths get one ridge pass of their own width
+    (:func:`thin_passes`). Every pass is then freed of self-crossings (:func:`uncross`) and its
+    bead fitted to the strip of surface it covers (:func:`fit_beads`; ``min_bead(points)`` gives
+    the narrowest bead there, the local layer thickness), and widened over the slivers the fit
+    leaves past tips and corners (:func:`fill_slivers`)."""
+    surface = clean_surface(mesh)
+    v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, BRIDGE_HOLE * np.pi * width)
+    if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > SUBDIVIDE_EDGE * width:
+        v, f = trimesh.remesh.subdivide(v, f)  # finer heat step (t = h²) and contours than the voxels
+    if len(f) == 0:
+        return LayerPaths(pieces=[])
+    dist = boundary_distance(v, f)
+    gap = contour_gap(v, f, dist, width)
+    if abs(gap - 1.0) > GAP_NOISE:
+        dist = dist * gap
+    f, thin = thin_passes(v, f, dist, width)
+    closed = int(np.isnan(dist).any())
+    finite = dist[np.isfinite(dist)]
+    top = float(finite.max()) if len(finite) else 0.0
+    levels = np.arange(FIRST_LEVEL * width, top, width)
+    rings, bands = contour_rings(v, f, dist, levels)
+    rings = prune_islands(rings, bands.top, width)
+    for r in rings:
+        r.top = float(bands.top[r.above])
+    # the narrowest bead (fit_beads), in widths: the layer thickness (0.8 w at the default path width,
+    # voxel / 0.8 of §3.6, on layers a voxel thick), which decides which loops are thin (thin_rise)
+    floor = max(float(np.median(min_bead(v))) / width, BEAD_MIN) if min_bead is not None else BEAD_MIN
+    extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor)
+    rings += extra
+    spirals, regions, splices, failed = connected_spirals(rings, width, start, floor)
+    out = LayerPaths(pieces=spirals + lines, rings=len(rings), regions=regions + len(lines) + len(thin),
+                     splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
+                     bridged_holes=bridged, thin_passes=len(thin))
+    passes = [p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
+    pieces, widths, out.gap_passes = layer_beads(surface, v, f, passes, width, min_bead, fill_gaps)
+    orders = [uncross(p, width) for p in pieces]
+    pieces, widths = [p[o] for p, o in zip(pieces, orders)], [b[o] for b, o in zip(widths, orders)]
+    out.pieces, out.widths = _order_pieces(pieces, widths, start)
+    out.travel = float(sum(np.linalg.norm(b[0] - a[-1]) for a, b in zip(out.pieces[:-1], out.pieces[1:])))
+    return out
+
+
+
+
+def _order_pieces(pieces: list[np.ndarray], widths: list[np.ndarray],
+                  start: np.ndarray | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Greedy nearest-end ordering (pieces may be reversed, with their vertex widths) to shorten
+    travels (§3.3.2 item 2)."""
+    left = list(zip(pieces, widths))
+    cursor = np.asarray(start, float) if start is not None else (left[0][0][0] if left else None)
+    ordered, ordered_w = [], []
+    while left:
+        d0 = [np.linalg.norm(p[0] - cursor) for p, _ in left]
+        d1 = [np.linalg.norm(p[-1] - cursor) for p, _ in left]
+        i = int(np.argmin(np.minimum(d0, d1)))
+        p, wv = left.pop(i)
+        if d0[i] > d1[i]:
+            p, wv = p[::-1], wv[::-1]
+        ordered.append(p)
+        ordered_w.append(wv)
+        cursor = p[-1]
+    return ordered, ordered_w
+
+
+
+# ----------------------------------------------------------------------------- all layers
+
+
+@dataclass(frozen=True)
+class ToolpathSettings:
+    """Parameters of the tool-path stage (mm, mm/min, radians)."""
+
+    path_width: float = 1.0  #: iso-contour spacing; default: the nozzle diameter
+    step: float = 1.0  #: re-sampling distance (thesis §3.5.2: 1 mm)
+    filament_diameter: float = 1.75
+    feed: float = 600.0  #: nozzle speed along the path, mm/min
+    max_angle: float = float(np.radians(10.0))  #: low-pass / slerp threshold (§3.5.2)
+    #: largest angle between orientation and layer normal: the shipped nozzle cone has a 40° half-angle,
+    #: so past ~50° it would cut the layer; 40° let every kitten waypoint reach a collision-free pose
+    max_tilt: float = float(np.radians(40.0))
+    window: int = 8  #: earlier layers searched for the closest point (Eq. 3.3)
+    fill_gaps: bool = True  #: extra passes through strips the spirals leave open (more jumps)
+
+    def __post_init__(self) -> None:
+        for name in ("path_width", "step", "filament_diameter", "feed", "max_angle", "max_tilt"):
+            if not getattr(self, name) > 0:
+                raise CurvsliceError(f"tool-path setting {name} must be positive (got {getattr(self, name)})")
+        if not self.max_tilt < np.pi / 2:
+            raise CurvsliceError("the largest tilt from the layer normal must be below 90° (else the nozzle could point into printed material)")
+        if not 0 < self.min_thickness <= self.max_thickness <= 1.0:
+            raise CurvsliceError("layer thickness clamps need 0 < min_thickness <= max_thickness <= 1 (shares of the path width)")
+    min_thickness: float = 0.1  #: local layer thickness clamp, as a share of the path width
+    max_thickness: float = 1.0
+
+
+@dataclass
+class Toolpaths:
+    """Samples of all layers in print order (the ``toolpaths.npz`` contract) and per-layer figures."""
+
+    positions: np.ndarray
+    normals: np.ndarray
+    layer: np.ndarray
+    path: np.ndarray
+    extrusion: np.ndarray
+    thickness: np.ndarray
+    feed: np.ndarray
+    bead: np.ndarray  #: bead width per sample (mm), encoded in ``extrusion``
+    layers: list[dict[str, float]]
+    seconds: dict[str, float]
+
+
+def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, float]],
+               candidates: int = THICKNESS_CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point under each point on the platform top ``z = 0`` or the ``earlier`` layers'
+    triangles (Eq. 3.3; ``candidates`` nearest triangle centroids tried on each; each layer comes
+    with its centroid tree and largest centroid-to-corner reach) and the distance
+    to it: the local layer thickness (unclamped). Layers are searched newest first, and a layer
+    only for the points it may bring closer: no triangle is nearer than its nearest centroid
+    less the layer's largest centroid-to-corner reach."""
+    q = np.asarray(points, np.float64).reshape(-1, 3)
+    closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
+    dist = np.abs(q[:, 2])
+    for tri_k, tree_k, reach in reversed(earlier):
+        bound = tree_k.query(q, workers=-1)[0] - reach
+        todo = np.nonzero(bound < dist)[0]
+        if len(todo) == 0:
+            continue
+        c_k, d_k, _ = ori.closest_points(q[todo], tri_k, tree_k, candidates)
+        better = d_k < dist[todo]
+        closest[todo[better]], dist[todo[better]] = c_k[better], d_k[better]
+    return closest, dist
+
+
+def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings = ToolpathSettings(),
+                   progress=None) -> Toolpaths:
+    """Tool-paths, orientations and extrusion for working surfaces in print order (§3.5.1-3.5.2).
+
+    Layer 1 stands on the platform top ``z = 0``; every later layer also on the ``window``
+    layers before it (Eq. 3.3). ``progress`` is an optional tqdm-like object updated per layer.
+    """
+    w = settings.path_width
+    out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness", "bead")}
+    earlier: list[tuple[np.ndarray, cKDTree, float]] = []
+    per_layer: list[dict[str, float]] = []
+    seconds = {"spirals": 0.0, "orientation": 0.0}
+    next_path, cursor = 0, None
+    for index, mesh in enumerate(surfaces, start=1):
+        t0 = perf_counter()
+        surface = clean_surface(mesh)
+        tri = surface.triangles
+        own_tree = cKDTree(tri.mean(axis=1)) if len(tri) else None
+        # (a floor: fewer candidate triangles than for the samples' own thickness below)
+        vertex_thickness = np.clip(_thickness(surface.vertices, earlier[-settings.window:], FLOOR_CANDIDATES)[1],
+                                   settings.min_thickness * w, settings.max_thickness * w)
+        vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
+
+        def min_bead(points: np.ndarray) -> np.ndarray:  # a bead is never narrower than it is high
+            return vertex_thickness[vertex_tree.query(points)[1]]
+
+        paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
+        samples = [resample(np.c_[p, b], settings.step, WIDTH_WEIGHT, TURN_WEIGHT * w) for p, b in zip(paths.pieces, paths.widths)]
+        samples = [s for s in samples if len(s) >= 2]
+        t1 = perf_counter()
+        row = {"layer": index, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
+               "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
+               "splices": paths.splices, "failed_splices": paths.failed_splices,
+               "closed_components": paths.closed_components, "gap_passes": paths.gap_passes,
+               "bridged_holes": paths.bridged_holes, "thin_passes": paths.thin_passes, "max_distance_mm": round(paths.max_distance, 3),
+               "samples": 0, "length_mm": 0.0}
+        if samples:
+            q = np.vstack(samples)
+            q, bead = q[:, :3], q[:, 3]
+            pid = next_path + piece_labels(samples)
+            next_path += len(samples)
+            cursor = q[-1]
+            q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer
+            surface_normal = ori.surface_normals(surface, q, own_face)
+            closest, dist = _thickness(q, earlier[-settings.window:])
+            t = ori.accumulation_directions(q, closest, surface_normal)
+            t = ori.limit_tilt(t, surface_normal, settings.max_tilt)
+            t = ori.low_pass(t, pid, settings.max_angle)
+            pos, nrm, parent, frac = ori.slerp_subdivide(q, t, pid, settings.max_angle)
+            pos, _, pos_face = ori.closest_points(pos, tri, own_tree)  # crest subdivisions onto the layer
+            # the low-pass may have tilted a sample past the limit: never into the printed side
+            nrm = ori.limit_tilt(nrm, ori.surface_normals(surface, pos, pos_face), HARD_TILT)
+            nxt = np.minimum(parent + 1, len(q) - 1)
+            thick = np.clip(dist, settings.min_thickness * w, settings.max_thickness * w)
+            row["thickness_clamped"] = int(np.sum((dist < settings.min_thickness * w) | (dist > settings.max_thickness * w)))
+            out["positions"].append(pos)
+            out["normals"].append(nrm)
+            out["layer"].append(np.full(len(pos), index, np.int32))
+            out["path"].append(pid[parent].astype(np.int32))
+            out["thickness"].append(thick[parent] + frac * (thick[nxt] - thick[parent]))
+            out["bead"].append(bead[parent] + frac * (bead[nxt] - bead[parent]))
+            row["samples"] = len(pos)
+            row["subdivided"] = int(len(pos) - len(q))
+            row["length_mm"] = round(float(sum(np.linalg.norm(np.diff(s[:, :3], axis=0), axis=1).sum() for s in samples)), 3)
+        if len(tri):
+            # the reach bounds every later search of this layer (_thickness): computed once
+            earlier.append((tri, own_tree, float(np.linalg.norm(tri - tri.mean(axis=1, keepdims=True), axis=2).max())))
+        t2 = perf_counter()
+        seconds["spirals"] += t1 - t0
+        seconds["orientation"] += t2 - t1
+        row["seconds"] = round(t2 - t0, 3)
+        per_layer.append(row)
+        if progress is not None:
+            progress.update(1)
+    cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("positions", "normals") else 0)) for k, v in out.items()}
+    path = cat["path"].astype(np.int32)
+    bead = np.maximum(cat["bead"], cat["thickness"]) if len(path) else np.zeros(0)
+    extrusion = extrusion_amounts(cat["positions"], path, cat["thickness"], bead, settings.filament_diameter) if len(path) else np.zeros(0)
+    return Toolpaths(cat["positions"], cat["normals"], cat["layer"].astype(np.int32), path, extrusion,
+                     cat["thickness"], np.full(len(path), settings.feed), bead, per_layer, seconds)
+
+
+def save_toolpaths(outdir: Path, tp: Toolpaths, settings: ToolpathSettings) -> None:
+    """Write ``toolpaths.npz`` (the stage contract) and the extended ``toolpaths.gcode``."""
+    outdir = Path(outdir)
+    np.savez_compressed(outdir / "toolpaths.npz", positions=tp.positions, normals=tp.normals, layer=tp.layer,
+                        path=tp.path, extrusion=tp.extrusion, thickness=tp.thickness, feed=tp.feed, bead=tp.bead)
+    header = {k: (round(float(np.degrees(v)), 6) if k in ("max_angle", "max_tilt") else v)
+              for k, v in asdict(settings).items()}
+    header = {("max_angle_deg" if k == "max_angle" else "max_tilt_deg" if k == "max_tilt" else k): v
+              for k, v in header.items()}
+    header.update(layers=len(tp.layers), samples=len(tp.positions), pieces=int(len(np.unique(tp.path))))
+    write_gcode6(outdir / "toolpaths.gcode", tp.positions, tp.normals, tp.extrusion, tp.feed, tp.path, tp.layer, header)

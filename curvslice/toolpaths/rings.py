@@ -1,0 +1,310 @@
+"""Iso-contours ("rings") of the boundary distance on a working surface (thesis §3.5.1, Fig. 3.9).
+
+Rings at ``(k + FIRST_LEVEL)·w`` as closed polylines with the higher side on their left, the
+band components between levels (the contour tree: a ring bounds one component below and one
+above), the spacing correction :func:`contour_gap`, and the extra contours and centre lines of
+peaks and slivers the regular levels miss.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from curvslice.geodesic import edge_keys
+from curvslice.toolpaths.constants import (BEAD_MIN, BEAD_RANGE, CENTRE_BIN, DENSE_STEP, DOT_RING, FIRST_LEVEL, GAP_LEVELS,
+                                           ISLAND_RISE, PEAK_RISE, ROUND_RING,
+                                           SLIVER_TOP)
+from curvslice.toolpaths.resampling import resample
+from curvslice.toolpaths.stacked import run_labels, run_offsets
+
+
+@dataclass
+class Ring:
+    """A closed iso-contour: points (k,3) with the higher distance on the left, its band comps and
+    the largest distance on its higher side (``top``, where known)."""
+
+    level: float
+    points: np.ndarray
+    below: int
+    above: int
+    top: float = np.inf
+
+    @property
+    def length(self) -> float:
+        return float(self.cumlen[-1])
+
+    @property
+    def cumlen(self) -> np.ndarray:
+        closed = np.vstack([self.points, self.points[:1]])
+        return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]
+
+    @property
+    def breadth(self) -> float:
+        """Mean breadth of the ring's inside: area / half the length (the vector area, i.e. the
+        projection on the ring's own plane) -- the gap between the sides of a long thin loop."""
+        p = self.points - self.points.mean(axis=0)
+        area = 0.5 * np.linalg.norm(np.cross(p, np.roll(p, -1, axis=0)).sum(axis=0))
+        return 2.0 * area / max(self.length, 1e-300)
+
+    @property
+    def rise(self) -> float:
+        """How far the inside reaches from the ring: the distance's rise above it (``top − level``)
+        on a round ring (``ROUND_RING``), half the mean breadth on an elongated one, whose rise may
+        come from one bulge."""
+        rise = self.top - self.level
+        if 2.0 * np.pi * self.breadth / max(self.length, 1e-300) >= ROUND_RING:  # 4π·area / length²
+            return rise
+        return min(rise, 0.5 * self.breadth)
+
+
+def thin_rise(floor: float, width: float) -> float:
+    """:attr:`Ring.rise` below which a ring is a thin loop, printed as one pass down its middle.
+
+    Each side of a loop owns half a width outside it and the rise ``r`` inside (half the breadth
+    of a strip), a bead of ``w/2 + r``; no bead is narrower than ``floor`` (the layer thickness, in
+    widths), so below ``r = (floor − ½)·w`` the sides' beads overlap, while one centre pass spans
+    ``2r + w`` ≤ ``2·floor·w`` (0.3 w at the default thickness 0.8 w: a strip 0.6 w broad)."""
+    return max(floor - 0.5, 0.0) * width
+
+
+
+def _edge_ids(faces: np.ndarray, n_vertices: int) -> np.ndarray:
+    """(F,3) undirected edge id of the edge from corner c to corner c+1."""
+    _, inverse = np.unique(edge_keys(faces, np.roll(faces, -1, axis=1), n_vertices).ravel(), return_inverse=True)
+    return inverse.reshape(faces.shape)
+
+
+@dataclass
+class Bands:
+    """Band components: ``node_face``/``node_band``/``comp`` per (triangle, band) node, and per
+    component its band index and largest distance value."""
+
+    node_face: np.ndarray
+    node_band: np.ndarray
+    comp: np.ndarray
+    top: np.ndarray
+    band: np.ndarray
+
+
+def contour_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
+                  levels: np.ndarray) -> tuple[list[Ring], Bands]:
+    """Closed iso-contours of the per-vertex ``dist`` at ascending ``levels`` and band components.
+
+    Band ``b`` holds the values in ``[levels[b-1], levels[b])``; a value equal to a level counts
+    as above it. Each ring knows the band component below and above it.
+    """
+    v = np.asarray(vertices, np.float64)
+    f = np.asarray(faces, np.int64)
+    d = np.where(np.isfinite(dist), dist, -np.inf)
+    levels = np.asarray(levels, np.float64)
+    nlev = len(levels)
+    band = np.searchsorted(levels, d, side="right")
+    fb = band[f]
+    bmin, bmax = fb.min(axis=1), fb.max(axis=1)
+    eid = _edge_ids(f, len(v))
+
+    # band components: nodes (face, band) for every band a face touches, joined across edges
+    width = bmax - bmin + 1
+    offset = np.r_[0, np.cumsum(width)]
+    n_nodes = int(offset[-1])
+    fe = eid.ravel()
+    order = np.argsort(fe, kind="stable")
+    fe_sorted = fe[order]
+    same = fe_sorted[1:] == fe_sorted[:-1]
+    f1, f2 = order[:-1][same] // 3, order[1:][same] // 3
+    corner = order[:-1][same] % 3
+    ea, eb = band[f[f1, corner]], band[f[f1, (corner + 1) % 3]]
+    lo, hi = np.minimum(ea, eb), np.maximum(ea, eb)
+    cnt = hi - lo + 1
+    rep = run_labels(cnt)
+    bb = lo[rep] + run_offsets(cnt)
+    n1 = offset[f1[rep]] + bb - bmin[f1[rep]]
+    n2 = offset[f2[rep]] + bb - bmin[f2[rep]]
+    graph = sp.coo_matrix((np.ones(len(n1)), (n1, n2)), shape=(n_nodes, n_nodes))
+    n_comp, comp = connected_components(graph, directed=False)
+    node_face = run_labels(width)
+    node_band = bmin[node_face] + run_offsets(width)
+    upper = np.r_[levels, np.inf][node_band]
+    comp_top = np.full(n_comp, -np.inf)
+    np.maximum.at(comp_top, comp, np.minimum(d[f[node_face]].max(axis=1), upper))
+    comp_band = np.zeros(n_comp, np.int64)
+    comp_band[comp] = node_band
+    bands = Bands(node_face, node_band, comp, comp_top, comp_band)
+
+    # one oriented segment per (face, crossed level)
+    crossings = bmax - bmin
+    pf = run_labels(crossings)
+    if len(pf) == 0:
+        return [], bands
+    pk = bmin[pf] + run_offsets(crossings)
+    above = d[f[pf]] >= levels[pk][:, None]
+    nxt = np.roll(above, -1, axis=1)
+    start_c = np.argmax(above & ~nxt, axis=1)
+    end_c = np.argmax(~above & nxt, axis=1)
+    rows = np.arange(len(pf))
+
+    def crossing(c: np.ndarray) -> np.ndarray:
+        p, q = f[pf, c], f[pf, (c + 1) % 3]
+        t = (levels[pk] - d[p]) / (d[q] - d[p])
+        return v[p] + t[:, None] * (v[q] - v[p])
+
+    start_key = eid[pf, start_c] * nlev + pk
+    end_key = eid[pf, end_c] * nlev + pk
+    p_start = crossing(start_c)
+    skey_order = np.argsort(start_key)
+    pos = np.searchsorted(start_key[skey_order], end_key)
+    pos = np.minimum(pos, len(pf) - 1)
+    found = start_key[skey_order[pos]] == end_key
+    nxt_seg = np.where(found, skey_order[pos], -1)
+    has_prev = np.zeros(len(pf), bool)
+    has_prev[nxt_seg[nxt_seg >= 0]] = True
+    below_node = comp[offset[pf] + pk - bmin[pf]]
+    above_node = comp[offset[pf] + pk + 1 - bmin[pf]]
+
+    rings: list[Ring] = []
+    visited = np.zeros(len(pf), bool)
+    for seed in np.r_[rows[~has_prev], rows]:  # open chains (non-manifold spots) first, then cycles
+        if visited[seed]:
+            continue
+        chain = []
+        s = seed
+        while s >= 0 and not visited[s]:
+            visited[s] = True
+            chain.append(s)
+            s = nxt_seg[s]
+        if len(chain) >= 3:
+            idx = np.asarray(chain)
+            rings.append(Ring(float(levels[pk[seed]]), p_start[idx], int(below_node[seed]), int(above_node[seed])))
+    return rings, bands
+
+
+def contour_gap(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, width: float) -> float:
+    """Median 3D gap between the contours of ``dist`` at adjacent levels ``width`` apart, per
+    ``width`` (from each contour point, sampled every ``DENSE_STEP`` widths, to the nearest of the level
+    below; the outermost ``GAP_LEVELS`` levels, which hold most of the passes); 1 when there are
+    fewer than two levels.
+
+    The heat-method distance runs along the layer's facets: on a layer dual-contoured from a
+    voxel field the facets step with the voxels, and the distance grows faster than the straight
+    3D gap that a bead spans (median gap 0.95-0.99 w on the kitten's and bunny's layers). Scaling
+    the distance by this ratio spaces the passes one width apart in 3D (thesis §3.5.1: passes a
+    path width apart), instead of laying the beads of such a layer over each other."""
+    finite = dist[np.isfinite(dist)]
+    levels = np.arange(FIRST_LEVEL * width, float(finite.max()) if len(finite) else 0.0, width)[:GAP_LEVELS]
+    if len(levels) < 2:
+        return 1.0
+    rings, _ = contour_rings(vertices, faces, dist, levels)
+    by_level: dict[float, list[np.ndarray]] = {}
+    for r in rings:
+        by_level.setdefault(r.level, []).append(resample(np.vstack([r.points, r.points[:1]]), DENSE_STEP * width))
+    ordered = [np.vstack(by_level[k]) for k in sorted(by_level)]
+    gaps = [cKDTree(a).query(b, workers=-1)[0] for a, b in zip(ordered[:-1], ordered[1:])]
+    return float(np.median(np.concatenate(gaps))) / width if gaps else 1.0
+
+
+def prune_islands(rings: list[Ring], comp_top: np.ndarray, width: float) -> list[Ring]:
+    """Drop rings around a peak that rises less than ``ISLAND_RISE`` widths above their level: along a
+    ridge these are islands of the distance field's noise, and printing one would lay two passes
+    less than half a width apart (an overlap larger than the gap it leaves)."""
+    bounding: dict[int, int] = {}
+    for r in rings:
+        bounding[r.below] = bounding.get(r.below, 0) + 1
+        bounding[r.above] = bounding.get(r.above, 0) + 1
+    return [r for r in rings if not (bounding[r.above] == 1 and comp_top[r.above] - r.level < ISLAND_RISE * width)]
+
+
+def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels: np.ndarray,
+               rings: list[Ring], bands: Bands, width: float,
+               floor: float = BEAD_MIN) -> tuple[list[Ring], list[np.ndarray]]:
+    """One more contour in each peak that the regular rings leave uncovered, and centre lines of
+    slivers.
+
+    A band component bounded by at most one ring, all below it, is covered up to half a width
+    above that ring (or not at all when no ring bounds it: a region thinner than a bead). If its
+    peak rises more than ``PEAK_RISE`` widths beyond, a contour at the mid level ``(covered + top) / 2``
+    covers the rest, so peaks and regions thinner than a bead are printed too. A region less than
+    half a bead wide (peak below ``SLIVER_TOP`` widths) gets one pass along its centre line instead of a loop.
+
+    Where that contour is a thin loop (a ridge, :func:`thin_rise`), its centre line is printed
+    instead, if there is room for it: the ring's beads and the centre bead each at least ``floor``
+    widths, i.e. the peak ``1.5·floor − 0.5`` widths above the ring; else the ring's beads widen
+    over the ridge (:func:`~curvslice.toolpaths.beads.fit_beads`). A dot (a ring shorter than
+    ``DOT_RING`` widths) inside an inner ring is left out where that ring's widest beads reach the
+    peak: the spiral would turn on it, and its links in and out would lie side by side.
+    """
+    bounding: dict[int, list[Ring]] = {}
+    for r in rings:
+        bounding.setdefault(r.below, []).append(r)
+        bounding.setdefault(r.above, []).append(r)
+    low = np.r_[-np.inf, levels]
+    reach = (BEAD_RANGE[1] - 0.5) * width  # inwards from a ring, by its widest bead
+    extra: list[Ring] = []
+    lines: list[np.ndarray] = []
+    next_comp = len(bands.top)
+    for c in range(len(bands.top)):
+        b = int(bands.band[c])
+        around = bounding.get(c, [])
+        if len(around) > 1 or any(r.below == c for r in around) or (b > 0 and not around):
+            continue  # not a peak, or the peak of a pruned island
+        covered = low[b] + 0.5 * width if around else 0.0
+        if around and bands.top[c] - covered <= PEAK_RISE * width:
+            continue  # (a region without any ring is always printed)
+        level = 0.5 * (covered + bands.top[c])
+        sub_faces = faces[bands.node_face[(bands.comp == c)]]
+        if not around and bands.top[c] < SLIVER_TOP * width:
+            lines.append(centre_line(vertices[np.unique(sub_faces)], width))
+            continue
+        found, sub = contour_rings(vertices, sub_faces, dist, np.array([level]))
+        rise = bands.top[c] - low[b]
+        for r in found:
+            dot = r.length < DOT_RING * width
+            r.top = float(bands.top[c])
+            if not dot and r.rise < thin_rise(floor, width):
+                if not around or rise >= (1.5 * floor - 0.5) * width:
+                    lines.append(loop_centre_line(r.points))
+            elif around and dot and b >= 2 and rise <= reach:
+                continue
+            else:
+                extra.append(Ring(r.level, r.points, c, next_comp + r.above, float(bands.top[c])))
+        next_comp += len(sub.top)
+    return extra, lines
+
+
+def loop_centre_line(points: np.ndarray) -> np.ndarray:
+    """Centre line of a thin closed loop: its two sides between the loop's ends (the farthest
+    pair of its points), paired by their share of arclength and averaged; curved loops keep their
+    course (a main-axis projection would fold a U onto itself)."""
+    a = int(np.argmax(np.linalg.norm(points - points[0], axis=1)))
+    b = int(np.argmax(np.linalg.norm(points - points[a], axis=1)))
+    b = (b - a) % len(points)
+    if b < 1 or b >= len(points) - 1:
+        return points[[0, a]] if a else points[:2]
+    loop = np.roll(points, -a, axis=0)
+    sides = [loop[:b + 1], np.vstack([loop[b:], loop[:1]])[::-1]]
+    shares = []
+    for side in sides:
+        cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(side, axis=0), axis=1))]
+        shares.append(cum / max(cum[-1], 1e-300))
+    t = np.unique(np.r_[shares[0], shares[1]])
+    halves = [np.column_stack([np.interp(t, sh, side[:, i]) for i in range(3)]) for sh, side in zip(shares, sides)]
+    return 0.5 * (halves[0] + halves[1])
+
+
+def centre_line(points: np.ndarray, width: float) -> np.ndarray:
+    """Centre line of a thin region: its points averaged in bins of ``CENTRE_BIN`` widths along the main axis."""
+    centre = points.mean(axis=0)
+    axis = np.linalg.svd(points - centre, full_matrices=False)[2][0]
+    t = (points - centre) @ axis
+    bins = np.floor((t - t.min()) / (CENTRE_BIN * width)).astype(np.int64)
+    counts = np.bincount(bins)
+    sums = np.stack([np.bincount(bins, weights=points[:, i]) for i in range(3)], axis=1)
+    line = sums[counts > 0] / counts[counts > 0, None]
+    ends = points[[np.argmin(t), np.argmax(t)]]
+    return np.vstack([ends[0], line, ends[1]]) if len(line) > 1 else ends
+
+

@@ -1,0 +1,272 @@
+"""Connected Fermat spirals (thesis §3.5.1; Zhao et al., SIGGRAPH 2016, the thesis's ref. [2]).
+
+A chain of nested rings is cut (``CUT_RANGE`` widths) near a common cut line and rerouted into
+one in-and-out spiral (inwards on rings 0, 2, 4, ..., outwards on 1, 3, 5, ..., both ends next to
+each other on the outer ring); where the contour tree branches, each child spiral is spliced into
+the ring that hosts it through a gap, so a connected region is one continuous piece unless a
+splice has no room (then the child becomes its own piece, counted as a jump).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from curvslice.toolpaths.constants import (BEAD_MIN, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
+                                           SPLICE_SHIFT, SPLICE_SHIFTS)
+from curvslice.toolpaths.rings import Ring, loop_centre_line, thin_rise
+
+
+# ----------------------------------------------------------------------------- ring geometry
+
+
+def _arc(ring: Ring, s_from: float, s_to: float, direction: int) -> np.ndarray:
+    """Points of ``ring`` from arclength ``s_from`` to ``s_to`` walking in ``direction`` (±1)."""
+    cum = ring.cumlen
+    total = cum[-1]
+    pts = np.vstack([ring.points, ring.points[:1]])
+    if total <= 0:
+        return ring.points[:1].copy()
+    s_from %= total
+    s_to %= total
+    span = (s_to - s_from) % total if direction > 0 else (s_from - s_to) % total
+    inner = cum[1:-1]
+    rel = ((inner - s_from) % total) if direction > 0 else ((s_from - inner) % total)
+    pick = np.nonzero((rel > 1e-9) & (rel < span - 1e-9))[0]
+    pick = pick[np.argsort(rel[pick])]
+    ends = [_point_at(pts, cum, s_from), _point_at(pts, cum, s_to)]
+    return np.vstack([ends[0], pts[1:-1][pick], ends[1]])
+
+
+def _point_at(closed_pts: np.ndarray, cum: np.ndarray, s: float) -> np.ndarray:
+    i = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(cum) - 2))
+    seg = cum[i + 1] - cum[i]
+    t = 0.0 if seg <= 0 else (s - cum[i]) / seg
+    return closed_pts[i] + t * (closed_pts[i + 1] - closed_pts[i])
+
+
+def _closest_s(ring: Ring, point: np.ndarray) -> tuple[float, float]:
+    """Arclength of the point of ``ring`` closest to ``point`` and that distance."""
+    a = ring.points
+    b = np.roll(a, -1, axis=0)
+    ab = b - a
+    t = np.clip(np.einsum("ij,ij->i", point - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0, 1)
+    proj = a + t[:, None] * ab
+    dist = np.linalg.norm(proj - point, axis=1)
+    i = int(np.argmin(dist))
+    cum = ring.cumlen
+    return float(cum[i] + t[i] * (cum[i + 1] - cum[i])), float(dist[i])
+
+
+def _tangent(ring: Ring, s: float, span: float) -> np.ndarray:
+    cum = ring.cumlen
+    pts = np.vstack([ring.points, ring.points[:1]])
+    total = cum[-1]
+    return _point_at(pts, cum, (s + span) % total) - _point_at(pts, cum, (s - span) % total)
+
+
+def _reversed(ring: Ring) -> Ring:
+    return Ring(ring.level, ring.points[::-1].copy(), ring.below, ring.above)
+
+
+# ----------------------------------------------------------------------------- Fermat spirals
+
+
+@dataclass
+class _Tree:
+    rings: list[Ring]
+    child_rings: dict[int, list[int]]  # band component -> rings entered from it
+    child_comp: dict[int, int]  # ring -> band component on its far side (if not visited before)
+
+
+def _contour_tree(rings: list[Ring], root: int) -> tuple[_Tree, list[int]]:
+    """BFS over the ring/component graph from ``root``; returns the tree and the rings reached."""
+    by_comp: dict[int, list[int]] = {}
+    for i, r in enumerate(rings):
+        by_comp.setdefault(r.below, []).append(i)
+        by_comp.setdefault(r.above, []).append(i)
+    seen_comp, seen_ring = {root}, set()
+    child_rings: dict[int, list[int]] = {}
+    child_comp: dict[int, int] = {}
+    queue, order = [root], []
+    while queue:
+        c = queue.pop(0)
+        for i in by_comp.get(c, []):
+            if i in seen_ring:
+                continue
+            seen_ring.add(i)
+            order.append(i)
+            child_rings.setdefault(c, []).append(i)
+            other = rings[i].above if rings[i].below == c else rings[i].below
+            if other not in seen_comp:
+                seen_comp.add(other)
+                child_comp[i] = other
+                queue.append(other)
+    return _Tree(rings, child_rings, child_comp), order
+
+
+class _Builder:
+    """Builds one connected-Fermat-spiral piece per subtree, splicing children where they fit."""
+
+    def __init__(self, tree: _Tree, width: float, floor: float = BEAD_MIN):
+        self.tree = tree
+        self.w = width
+        self.thin = thin_rise(floor, width)
+        self.gap = CUT_RANGE[0] * width
+        self.extra_pieces: list[np.ndarray] = []
+        self.splices = 0
+        self.failed = 0
+
+    def chain_from(self, ring_id: int) -> list[int]:
+        chain = [ring_id]
+        while True:
+            comp = self.tree.child_comp.get(chain[-1])
+            kids = self.tree.child_rings.get(comp, []) if comp is not None else []
+            if len(kids) != 1:
+                return chain
+            chain.append(kids[0])
+
+    def piece(self, ring_id: int, anchor: np.ndarray, host_tangent: np.ndarray | None,
+              siblings: list[int] = ()) -> np.ndarray:
+        """Fermat spiral of the chain starting at ``ring_id``, cut next to ``anchor``.
+
+        The innermost ring of a chain thinner than :func:`~curvslice.toolpaths.rings.thin_rise`
+        (and hosting no branches) is not part of the spiral: its two sides would be laid over each
+        other, so it becomes one pass down its middle, a piece of its own."""
+        chain = self.chain_from(ring_id)
+        inner = self.tree.rings[chain[-1]]
+        inner_comp = self.tree.child_comp.get(chain[-1])
+        if (len(chain) > 1 and inner.length >= DOT_RING * self.w and inner.rise < self.thin
+                and len(self.tree.child_rings.get(inner_comp, [])) <= 1):
+            self.extra_pieces.append(loop_centre_line(inner.points))
+            chain = chain[:-1]
+        rings = [self.tree.rings[i] for i in chain]
+        cuts: list[float] = []
+        point = anchor
+        tangent = host_tangent
+        for k, ring in enumerate(rings):
+            s, _ = _closest_s(ring, point)
+            if tangent is not None and ring.length > 0 and np.dot(_tangent(ring, s, self.w), tangent) < 0:
+                ring = _reversed(ring)
+                s = ring.length - s
+            rings[k] = ring
+            cuts.append(s)
+            point = _point_at(np.vstack([ring.points, ring.points[:1]]), ring.cumlen, s)
+            tangent = _tangent(ring, s, self.w)
+        dots = [r.length < DOT_RING * self.w for r in rings]
+        # children hosted by the innermost ring (branches), root siblings by ring 0
+        hosted: dict[int, list[int]] = {}
+        last_comp = self.tree.child_comp.get(chain[-1])
+        if last_comp is not None and len(self.tree.child_rings.get(last_comp, [])) > 1:
+            hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
+        if siblings:
+            hosted.setdefault(0, []).extend(siblings)
+        if len(rings) == 1 and not hosted and rings[0].rise < self.thin:
+            # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
+            # as the region (fit_beads), instead of two sides printed over each other
+            return loop_centre_line(rings[0].points)
+        arcs: list[np.ndarray] = []
+        n = len(rings)
+        order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
+        for k in order:
+            ring, s = rings[k], cuts[k]
+            if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: its diameter)
+                centre = ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
+                far = ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]
+                arcs.append(centre[None] if n > 1 else np.vstack([centre, far]))
+                for child in hosted.get(k, []):
+                    self._separate(child)
+                continue
+            g = float(np.clip(ring.length / CUT_SHARE, CUT_RANGE[0] * self.w, CUT_RANGE[1] * self.w)) if n >= 3 else self.gap
+            if k % 2 == 0:
+                start, end, direction = s - g / 2, s + g / 2, -1
+            else:
+                start, end, direction = s + g / 2, s - g / 2, +1
+            arcs.append(self._ring_walk(ring, start, end, direction, hosted.get(k, []), s))
+        return np.vstack(arcs)
+
+    def _separate(self, ring_id: int) -> None:
+        self.failed += 1
+        first = self.tree.rings[ring_id].points[0]
+        self.extra_pieces.append(self.piece(ring_id, first, None))
+
+    def _ring_walk(self, ring: Ring, start: float, end: float, direction: int,
+                   children: list[int], cut: float) -> np.ndarray:
+        """Walk ``ring`` from ``start`` to ``end`` splicing in the spirals of ``children``."""
+        total = ring.length
+        span = (end - start) % total if direction > 0 else (start - end) % total
+        g = self.gap
+        closed = np.vstack([ring.points, ring.points[:1]])
+        cum = ring.cumlen
+        placed: list[tuple[float, int]] = []  # (offset along the walk, child)
+        shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
+        for child in children:
+            s_child, dist = _closest_s(ring, self._nearest_point(child, ring))
+            offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
+            taken = [o for o, _ in placed]
+            ok_pos = None
+            for shift in np.r_[0.0, shifts]:
+                o = offset + shift
+                if g <= o <= span - g and all(abs(o - t) >= 2 * g for t in taken):
+                    ok_pos = o
+                    break
+            if ok_pos is None or dist > SPLICE_REACH * self.w:
+                self._separate(child)
+                continue
+            placed.append((ok_pos, child))
+        placed.sort()
+        parts = []
+        cursor = 0.0
+        for o, child in placed:
+            s_at = start + direction * o
+            parts.append(_arc(ring, start + direction * cursor, s_at - direction * g / 2, direction))
+            anchor = _point_at(closed, cum, s_at % total)
+            tangent = direction * _tangent(ring, s_at % total, self.w)
+            sub = self.piece(child, anchor, tangent)
+            leave = _point_at(closed, cum, (s_at + direction * g / 2) % total)
+            arrive = parts[-1][-1]
+            if (np.linalg.norm(sub[-1] - arrive) + np.linalg.norm(sub[0] - leave)
+                    < np.linalg.norm(sub[0] - arrive) + np.linalg.norm(sub[-1] - leave)):
+                sub = sub[::-1]  # the pairing of gap ends and spiral ends that does not cross
+            parts.append(sub)
+            self.splices += 1
+            cursor = o + g / 2
+        parts.append(_arc(ring, start + direction * cursor, end, direction))
+        return np.vstack(parts)
+
+    def _nearest_point(self, child: int, host: Ring) -> np.ndarray:
+        pts = self.tree.rings[child].points
+        a = host.points
+        dist, idx = cKDTree(a).query(pts)
+        return a[idx[np.argmin(dist)]]
+
+
+
+
+def connected_spirals(rings: list[Ring], width: float, start: np.ndarray | None,
+                      floor: float = BEAD_MIN) -> tuple[list[np.ndarray], int, int, int]:
+    """One connected-Fermat-spiral piece per connected region of ``rings``, each rooted at the
+    outermost ring nearest to where the previous one ended (``start`` for the first), then the
+    children that no splice could host. Returns the pieces and the numbers of regions, splices
+    and failed splices. ``floor`` is the narrowest bead in widths (the layer thickness), which
+    decides which loops are thin (:func:`~curvslice.toolpaths.rings.thin_rise`)."""
+    pieces: list[np.ndarray] = []
+    remaining = set(range(len(rings)))
+    builder = _Builder(_Tree(rings, {}, {}), width, floor)
+    cursor = np.asarray(start, float) if start is not None else (rings[0].points[0] if rings else None)
+    while remaining:
+        # root: the band-0 component of the outermost ring nearest to the cursor
+        outer = [i for i in remaining if rings[i].level == FIRST_LEVEL * width] or list(remaining)
+        first = min(outer, key=lambda i: _closest_s(rings[i], cursor)[1])
+        root = rings[first].below
+        tree, order = _contour_tree(rings, root)
+        remaining -= set(order)
+        builder.tree = tree
+        roots = tree.child_rings.get(root, [])
+        main = max(roots, key=lambda i: rings[i].length)
+        piece = builder.piece(main, cursor, None, siblings=[i for i in roots if i != main])
+        pieces.append(piece)
+        cursor = piece[-1]
+    return pieces + builder.extra_pieces, len(pieces), builder.splices, builder.failed
