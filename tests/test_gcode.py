@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from curvslice.cell.gcode import parse_gcode, read_gcode
 from curvslice.errors import CurvsliceError
-from curvslice.gcode import parse_gcode, read_gcode
 
 
 def prusa_style(layers: int = 4, seed: int = 0, size: float = 30.0, origin=(100.0, 100.0)) -> str:

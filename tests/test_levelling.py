@@ -10,17 +10,17 @@ import pytest
 from scipy.interpolate import RegularGridInterpolator
 
 from curvslice import cli
-from curvslice.cell import load_cell, robot_path
-from curvslice.errors import CurvsliceError
-from curvslice.gcode import parse_gcode
-from curvslice.levelling import (
+from curvslice.cell.cells import load_cell, robot_path
+from curvslice.cell.gcode import parse_gcode
+from curvslice.cell.levelling import (
     HeightMap,
     heightmap_from_points,
     level_path,
     read_probe_csv,
     write_probe_csv,
-    write_probe_routine,
 )
+from curvslice.errors import CurvsliceError
+from curvslice.exporters.rapid import write_probe_routine
 
 #: Seed 004 Appendix 10: the 25 probed bed heights, 50 mm apart.
 SEED_004_PROBES = np.array([

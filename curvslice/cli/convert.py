@@ -1,8 +1,8 @@
 """``curvslice convert IN.gcode --to vplus|rapid|urscript|gcode6 --cell CELL``: slicer G-code to robot programs.
 
-Reads planar slicer G-code strictly (:mod:`curvslice.gcode`), maps it onto the cell
-(:mod:`curvslice.cell`: offset, workspace, nozzle orientation), optionally levels it on a probed
-bed (:mod:`curvslice.levelling`) and writes each requested target through the exporters.
+Reads planar slicer G-code strictly (:mod:`curvslice.cell.gcode`), maps it onto the cell
+(:mod:`curvslice.cell.cells`: offset, workspace, nozzle orientation), optionally levels it on a probed
+bed (:mod:`curvslice.cell.levelling`) and writes each requested target through the exporters.
 Seeds 003 (V+ + Arduino sketch) and 004 (RAPID, bed levelling) describe the targets.
 """
 
@@ -13,15 +13,15 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from curvslice.cell import Cell, gcode6_samples, load_cell, robot_path
-from curvslice.exporters import RobotPath
+from curvslice.cell.cells import Cell, gcode6_samples, load_cell, robot_path
+from curvslice.cell.gcode import read_gcode
+from curvslice.cell.levelling import level_path, read_probe_csv
 from curvslice.exporters.arduino import write_accelstepper_sketch
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.exporters.rapid import write_rapid
 from curvslice.exporters.urscript import write_urscript
 from curvslice.exporters.vplus import signal_count, speed_inventory, write_vplus
-from curvslice.gcode import read_gcode
-from curvslice.levelling import level_path, read_probe_csv
+from curvslice.robot_path import RobotPath
 
 TARGETS = ("vplus", "rapid", "urscript", "gcode6")
 

@@ -15,9 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
-from curvslice.cell import check_workspace, load_cell
+from curvslice.cell.cells import check_workspace, load_cell
+from curvslice.cell.drape import design_from_paths, drape, draped_robot_path, load_surface, read_dxf
 from curvslice.cli.convert import TARGETS, write_targets
-from curvslice.drape import design_from_paths, drape, draped_robot_path, load_surface, read_dxf
 
 
 def add_parser(subparsers) -> None:

@@ -12,9 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
-from curvslice.cell import load_cell
+from curvslice.cell.cells import load_cell
+from curvslice.cell.levelling import read_probe_csv
 from curvslice.errors import CurvsliceError
-from curvslice.levelling import read_probe_csv, write_probe_routine
+from curvslice.exporters.rapid import write_probe_routine
 
 
 def add_parser(subparsers) -> None:

@@ -13,7 +13,7 @@ import re
 from pathlib import Path
 
 from curvslice import flow
-from curvslice.cell import Syringe
+from curvslice.cell.cells import Syringe
 from curvslice.errors import CurvsliceError
 
 _BRANCH = re.compile(r"else if \(([^)]*)\)\s*\{\s*//\s*Extruder (\d+), Speed (\d+)\s*\n\s*E\d+\.setSpeed\(([-+0-9.eE]+)\)")

@@ -16,10 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
-from curvslice.cell import RapidIO
+from curvslice.cell.cells import RapidIO
 from curvslice.errors import CurvsliceError
 from curvslice.exporters import (
-    RobotPath,
     chunks,
     clean_outdir,
     event_text,
@@ -30,7 +29,7 @@ from curvslice.exporters import (
     read_joint_rows,
     relative_times,
 )
-from curvslice.gcode import Event
+from curvslice.robot_path import Event, RobotPath
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,19}")
 _NUM = r"[-+0-9.eE]+"
@@ -329,3 +328,51 @@ def read_rapid(paths: Sequence[Path], io: RapidIO = RapidIO()) -> dict[str, obje
         "extruding": np.asarray(ext, bool),
         "events": events,
     }
+
+
+def write_probe_routine(
+    path: str | Path,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    *,
+    name: str = "BedProbe",
+    probe_offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    orientation: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 0.0),
+    signal: str = "diProbe",
+    tool: str = "tool0",
+    wobj: str = "wobj0",
+    clearance: float = 20.0,
+    depth: float = 5.0,
+    csv_name: str = "HOME:/probe.csv",
+) -> int:
+    """Write a RAPID module probing the lattice ``xs`` × ``ys`` (seed 004 Appendix 9); returns the count.
+
+    For each point (row by row, serpentine) the nozzle moves ``clearance`` above the target with
+    the probe over the grid point (``probe_offset`` = probe tip − nozzle tip), searches down to
+    ``depth`` below z = 0 with ``SearchL \\Stop`` until ``signal`` rises, retracts, and appends the
+    touched bed point (search position + ``probe_offset``) to ``csv_name`` as ``x,y,z``.
+    """
+    xs = np.asarray(xs, float)
+    ys = np.asarray(ys, float)
+    q = np.asarray(orientation, float)
+    q = q / np.linalg.norm(q)
+    quat = ",".join(f"{v:.9f}" for v in q)
+    ox, oy, oz = probe_offset
+    order = [(i, j) for j in range(len(ys)) for i in (range(len(xs)) if j % 2 == 0 else reversed(range(len(xs))))]
+    lines = [f"MODULE {name}", "  VAR iodev probelog;", "  VAR robtarget touched;"]
+    for k, (i, j) in enumerate(order, start=1):
+        x, y = fixed(xs[i] - ox, 3), fixed(ys[j] - oy, 3)
+        lines.append(f"  CONST robtarget c{k} := [[{x},{y},0.0],[{quat}],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];")
+    where = f"{tool}\\WObj:={wobj}"
+    lines += [f"  PROC {name}()", f'    Open "{csv_name}", probelog \\Write;', '    Write probelog, "x,y,z";']
+    for k in range(1, len(order) + 1):
+        lines += [
+            f"    MoveL Offs(c{k},0,0,{fixed(clearance, 3)}), v50, fine, {where};",
+            f"    SearchL \\Stop, {signal}, touched, Offs(c{k},0,0,{fixed(-depth, 3)}), v1, {where};",
+            f"    Write probelog, NumToStr(touched.trans.x + {fixed(ox, 4)},4) + \",\" + "
+            f"NumToStr(touched.trans.y + {fixed(oy, 4)},4) + \",\" + NumToStr(touched.trans.z + {fixed(oz, 4)},4);",
+            f"    MoveL Offs(c{k},0,0,{fixed(clearance, 3)}), v10, fine, {where};",
+        ]
+    lines += ["    Close probelog;", "  ENDPROC", "ENDMODULE"]
+    Path(path).write_text("\n".join(lines) + "\n")
+    return len(order)

@@ -18,10 +18,9 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from curvslice.cell import UrIO
+from curvslice.cell.cells import UrIO
 from curvslice.errors import CurvsliceError
 from curvslice.exporters import (
-    RobotPath,
     clean_outdir,
     event_text,
     fixed,
@@ -31,7 +30,7 @@ from curvslice.exporters import (
     read_joint_rows,
     relative_times,
 )
-from curvslice.gcode import Event
+from curvslice.robot_path import Event, RobotPath
 
 _NUM = r"[-+0-9.eE]+"
 _JOINT_MOVE = re.compile(rf"^\s*(servoj|movej)\(\[([^\]]*)\](?:.*?\bt=({_NUM}))?")

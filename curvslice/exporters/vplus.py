@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from curvslice.cell import VplusIO
+from curvslice.cell.cells import VplusIO
 from curvslice.errors import CurvsliceError
-from curvslice.exporters import RobotPath, compact, event_text, fixed, parse_event_text
-from curvslice.gcode import Event
+from curvslice.exporters import compact, event_text, fixed, parse_event_text
+from curvslice.robot_path import Event, RobotPath
 
 _SPEED = re.compile(r"^\s*SPEED\s+([-+0-9.]+)\s+MMPS\s+ALWAYS", re.IGNORECASE)
 _MOVE = re.compile(r"^\s*MOVES?\s+TRANS\(([^)]*)\)", re.IGNORECASE)

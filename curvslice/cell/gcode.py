@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.errors import CurvsliceError
+from curvslice.robot_path import Event
 
 _WORD = re.compile(r"(n[XYZ]|[A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))?")  # no exponents: "X10E5" is X10 E5
 _PAREN_COMMENT = re.compile(r"\([^)]*\)")
@@ -46,17 +47,6 @@ EVENT_CODES: dict[str, set[str]] = {
     "M862.1": set(), "M862.2": set(), "M862.3": set(), "M862.4": set(), "M862.5": set(), "M862.6": set(),
 }
 _TEXT_CODES = {"M117", "M118", "M115", "M486", "M862.1", "M862.2", "M862.3", "M862.4", "M862.5", "M862.6"}
-
-
-@dataclass(frozen=True)
-class Event:
-    """A non-motion command, happening before move ``index`` (the count of moves read so far)."""
-
-    index: int
-    line: int
-    code: str
-    params: dict[str, float]
-    text: str
 
 
 @dataclass

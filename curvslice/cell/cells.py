@@ -1,7 +1,6 @@
 """Print-cell description for ``curvslice convert``: how planar G-code maps onto a robot.
 
-Not to be confused with :mod:`curvslice.workcell` (the robot + nozzle + platform frames used to
-plan multi-axis motion). A *cell* here is what seeds 003 (Adept Python, V+), 004 (ABB IRB 120,
+A *cell* is what seeds 003 (Adept Python, V+), 004 (ABB IRB 120,
 RAPID) and 000 (ABB IRB 120) hard-coded in their converters: the position offset from G-code to
 robot coordinates, workspace limits, the fixed nozzle orientation, and the I/O each controller
 uses for the extruder (V+ signals and the Arduino sketch of seed 003, the speed bits and
@@ -22,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
+from curvslice.cell.gcode import GcodeProgram
 from curvslice.errors import CurvsliceError
-from curvslice.exporters import RobotPath
-from curvslice.gcode import GcodeProgram
+from curvslice.robot_path import RobotPath
 
 
 @dataclass(frozen=True)

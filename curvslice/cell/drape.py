@@ -28,9 +28,9 @@ import trimesh
 from shapely.geometry import LineString, MultiPolygon, Polygon
 
 from curvslice import flow
-from curvslice.cell import Cell, tool_quaternions
+from curvslice.cell.cells import Cell, tool_quaternions
 from curvslice.errors import CurvsliceError
-from curvslice.exporters import RobotPath
+from curvslice.robot_path import RobotPath
 
 #: Seed 000 Eq. 3-1: the moulded platform, z(r) = -3.309e-8 r⁴ + 2.084e-21 r³ - 0.002343 r² - 4.481e-17 r + 149.6.
 BROOKS_PLATFORM = (-3.309e-8, 2.084e-21, -0.002343, -4.481e-17, 149.6)
