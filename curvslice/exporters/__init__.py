@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.errors import CurvsliceError
-from curvslice.robot_path import Event
+from curvslice.robot_path import Event, RobotPath
+from curvslice.validate import require_finite
 
 
 _EVENT_TEXT = re.compile(r"^event\s+(\S+)((?:\s+[A-Za-z]+=[-+0-9.eE]+)*)\s*(?:\|\s?(.*))?$")
@@ -35,6 +36,17 @@ def parse_event_text(text: str, index: int) -> Event | None:
         return None
     params = {k: float(v) for k, v in (w.split("=") for w in m[2].split())}
     return Event(index, 0, m[1], params, m[3] or "")
+
+
+def check_robot_path(robot: RobotPath, where: str) -> None:
+    """Refuse a path a controller must not run: no moves, NaN / inf anywhere, or a speed <= 0 mm/s."""
+    if len(robot) == 0:
+        raise CurvsliceError(f"{where}: the path has no moves; nothing to write")
+    require_finite(where, positions=robot.positions, quaternions=robot.quaternions, speed=robot.speed,
+                   extrusion=robot.extrusion)
+    if np.any(robot.speed <= 0):
+        row = int(np.argmax(robot.speed <= 0))
+        raise CurvsliceError(f"{where}: speed {robot.speed[row]:g} mm/s at row {row} is not positive")
 
 
 def output_switches(*states: np.ndarray) -> np.ndarray:

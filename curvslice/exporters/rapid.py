@@ -20,6 +20,7 @@ from curvslice.cell.cells import RapidIO
 from curvslice.errors import CurvsliceError
 from curvslice.exporters import (
     chunks,
+    check_robot_path,
     clean_outdir,
     event_text,
     fixed,
@@ -30,6 +31,7 @@ from curvslice.exporters import (
     relative_times,
 )
 from curvslice.robot_path import Event, RobotPath
+from curvslice.validate import require_finite
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,19}")
 _NUM = r"[-+0-9.eE]+"
@@ -233,6 +235,7 @@ def write_rapid(outdir: Path, robot: RobotPath, io: RapidIO, *, name: str = "cur
     The filament of each move is kept as a trailing ``! E…`` comment.
     """
     check_identifier(name)
+    check_robot_path(robot, "RAPID writer")
     outdir = Path(outdir)
     n = len(robot)
     states = _output_states(robot, io)
@@ -241,7 +244,7 @@ def write_rapid(outdir: Path, robot: RobotPath, io: RapidIO, *, name: str = "cur
     quats = robot.quaternions / np.linalg.norm(robot.quaternions, axis=1, keepdims=True)
     events = robot.events_at()
     stop = output_switches(*(v for _, v in states))
-    stop[:-1] |= [any(ev.code == "G4" for ev in events.get(i + 1, [])) for i in range(n - 1)]
+    stop[:-1] |= np.array([any(ev.code == "G4" for ev in events.get(i + 1, [])) for i in range(n - 1)], bool)
     conf = ",".join(str(int(c)) for c in io.robconf)
     clean_outdir(outdir, f"{name}_mod*.mod")
 
@@ -354,6 +357,8 @@ def write_probe_routine(
     """
     xs = np.asarray(xs, float)
     ys = np.asarray(ys, float)
+    require_finite(f"RAPID probe routine writer ({Path(path).name})", xs=xs, ys=ys, probe_offset=probe_offset,
+                   orientation=orientation, clearance=[clearance], depth=[depth])
     q = np.asarray(orientation, float)
     q = q / np.linalg.norm(q)
     quat = ",".join(f"{v:.9f}" for v in q)

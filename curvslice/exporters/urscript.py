@@ -21,6 +21,7 @@ from scipy.spatial.transform import Rotation
 from curvslice.cell.cells import UrIO
 from curvslice.errors import CurvsliceError
 from curvslice.exporters import (
+    check_robot_path,
     clean_outdir,
     event_text,
     fixed,
@@ -149,6 +150,7 @@ def write_urscript(
     The extruder output follows ``robot.extruding``; ``io.retract_output`` (if set) is high while
     the filament is retracted. Dwell (G4) becomes ``sleep``; other events become comments.
     """
+    check_robot_path(robot, "URScript writer")
     outputs = [(io.extruder_output, robot.extruding)]
     if io.retract_output is not None:
         outputs.append((io.retract_output, robot.retracted))
