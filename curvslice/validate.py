@@ -67,9 +67,9 @@ def number(unit: str, *, lo: float | None = None, hi: float | None = None, lo_op
 
     def parse(text: str) -> float:
         try:
-            return check_number(_parse_float(text), "the value", unit, lo=lo, hi=hi, lo_open=lo_open, hi_open=hi_open)
+            return check_number(_parse_float(text), "value", unit, lo=lo, hi=hi, lo_open=lo_open, hi_open=hi_open)
         except CurvsliceError as exc:
-            raise argparse.ArgumentTypeError(f"{exc} ({text!r})") from None
+            raise argparse.ArgumentTypeError(str(exc)) from None
 
     parse.__name__ = f"number of {unit}" if unit else "number"
     return parse
@@ -80,9 +80,9 @@ def count(what: str, *, lo: int = 0, hi: int | None = None) -> Callable[[str], i
 
     def parse(text: str) -> int:
         try:
-            return int(check_number(_parse_float(text), "the value", what, lo=lo, hi=hi, integer=True))
+            return int(check_number(_parse_float(text), "value", what, lo=lo, hi=hi, integer=True))
         except CurvsliceError as exc:
-            raise argparse.ArgumentTypeError(f"{exc} ({text!r})") from None
+            raise argparse.ArgumentTypeError(str(exc)) from None
 
     parse.__name__ = f"count of {what}"
     return parse

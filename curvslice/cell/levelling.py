@@ -24,6 +24,7 @@ import numpy as np
 from curvslice.cell.cells import quaternion_multiply, tool_quaternions
 from curvslice.errors import CurvsliceError
 from curvslice.robot_path import RobotPath
+from curvslice.validate import check_budget, read_text
 
 
 @dataclass(frozen=True)
@@ -69,13 +70,32 @@ class HeightMap:
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
+#: Probe coordinates closer than this (mm) are the same lattice line: a probing robot repeats
+#: positions to about 0.01 mm, and a probed x,y carries that jitter.
+LATTICE_TOLERANCE = 0.01
+#: Most probe points a grid may have (a 100 x 100 grid takes hours to probe already).
+MAX_PROBES = 10_000
+
+
+def _lattice_lines(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct lattice coordinates (the mean of each cluster within :data:`LATTICE_TOLERANCE`) and
+    the index of each value's line."""
+    order = np.argsort(values, kind="stable")
+    label = np.empty(len(values), np.intp)
+    label[order] = np.concatenate([[0], np.cumsum(np.diff(values[order]) > LATTICE_TOLERANCE)])
+    lines = np.bincount(label, weights=values) / np.bincount(label)
+    return lines, label
+
+
 def heightmap_from_points(points: np.ndarray, source: str = "probe grid") -> HeightMap:
-    """A :class:`HeightMap` from (N, 3) probe points that cover a rectangular lattice exactly once."""
+    """A :class:`HeightMap` from (N, 3) probe points that cover a rectangular lattice exactly once
+    (x and y within :data:`LATTICE_TOLERANCE` of their lattice line)."""
     pts = np.asarray(points, float)
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
         raise CurvsliceError(f"{source}: expected finite rows of x, y, z")
-    xs, xi = np.unique(pts[:, 0], return_inverse=True)
-    ys, yi = np.unique(pts[:, 1], return_inverse=True)
+    check_budget(f"{source}: probe points", len(pts), MAX_PROBES, "probe a coarser grid")
+    xs, xi = _lattice_lines(pts[:, 0])
+    ys, yi = _lattice_lines(pts[:, 1])
     if len(xs) < 2 or len(ys) < 2:
         raise CurvsliceError(f"{source}: needs at least 2 distinct x and 2 distinct y values")
     count = np.zeros((len(ys), len(xs)), int)
@@ -95,7 +115,7 @@ def read_probe_csv(path: str | Path) -> HeightMap:
     if not path.is_file():
         raise CurvsliceError(f"probe file {path} does not exist")
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path, "probe CSV").splitlines(), start=1):
         text = line.split("#", 1)[0].strip()
         if not text:
             continue

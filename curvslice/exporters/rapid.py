@@ -58,6 +58,10 @@ def check_identifier(name: str) -> str:
     return name
 
 
+#: The module files a split program writes (glob): an earlier, longer split's extras are stale.
+SPLIT_FILES = "{name}_mod*.mod"
+
+
 def write_main_module(
     outdir: Path, name: str, parts: int, load_dir: str, reset: list[str], declarations: Sequence[str] = ()
 ) -> Path:
@@ -119,7 +123,7 @@ def write_rapid_joints(
     dt = relative_times(t)
     deg = np.degrees(q)
     outdir = Path(outdir)
-    clean_outdir(outdir, f"{name}_mod*.mod")
+    clean_outdir(outdir, SPLIT_FILES.format(name=name))
     n = len(q)
     # stop after the untimed approach, where the next row switches the extruder or starts a new
     # segment, and where a module ends
@@ -246,7 +250,7 @@ def write_rapid(outdir: Path, robot: RobotPath, io: RapidIO, *, name: str = "cur
     stop = output_switches(*(v for _, v in states))
     stop[:-1] |= np.array([any(ev.code == "G4" for ev in events.get(i + 1, [])) for i in range(n - 1)], bool)
     conf = ",".join(str(int(c)) for c in io.robconf)
-    clean_outdir(outdir, f"{name}_mod*.mod")
+    clean_outdir(outdir, SPLIT_FILES.format(name=name))
 
     def event_lines(i: int) -> list[str]:
         return [f"    WaitTime \\InPos, {fixed(ev.params['seconds'], 3)};" if ev.code == "G4" else f"    ! {event_text(ev)}"

@@ -45,6 +45,10 @@ _COMMENT_NUMBER = re.compile(rf"^\s*#\s*(t_start|segment)\s+({_NUM})")
 _FILE_OVERHEAD = 4
 
 
+#: The script files a split program writes (glob): an earlier, longer split's extras are stale.
+SPLIT_FILES = "{name}_[0-9][0-9][0-9].script"
+
+
 def _check_name(name: str) -> str:
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]{0,40}", name):
         raise CurvsliceError(f"program name {name!r} is not a URScript identifier (letters, digits, _)")
@@ -61,7 +65,7 @@ def _write_parts(
     if max_lines < 4 + _FILE_OVERHEAD:
         raise CurvsliceError(f"max_lines={max_lines} leaves no room for motion lines (need at least 8)")
     outdir = Path(outdir)
-    clean_outdir(outdir, f"{name}_[0-9][0-9][0-9].script")
+    clean_outdir(outdir, SPLIT_FILES.format(name=name))
     files: list[list[str]] = []
     body: list[str] = []
     for i in range(n):
