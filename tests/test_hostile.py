@@ -44,6 +44,14 @@ def dxf(path: Path, radius: float = 10.0) -> Path:
     return path
 
 
+def workcell(folder: Path, **changes) -> Path:
+    """The shipped UR5 workcell with ``changes``, as a JSON file (NaN written as JSON's NaN)."""
+    from curvslice.workcell import load_workcell, workcell_to_dict
+
+    spec = {**workcell_to_dict(load_workcell("ur5")), **changes}
+    return write(folder / "wc.json", json.dumps(spec))
+
+
 def write(path: Path, content: str | bytes) -> Path:
     (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
     return path
@@ -107,6 +115,10 @@ CASES = [
     ("file", "cell-unknown-key", lambda d: ["convert", d / "ok.gcode", "--to", "rapid", "--out", d / "o", "--cell", write(d / "c.json", '{"speed": 5}')], "unknown key"),
     ("file", "cell-not-json", lambda d: ["convert", d / "ok.gcode", "--to", "rapid", "--out", d / "o", "--cell", write(d / "c.json", "{max_speed: 5")], "not valid JSON"),
     ("file", "cell-array", lambda d: ["convert", d / "ok.gcode", "--to", "rapid", "--out", d / "o", "--cell", write(d / "c.json", "[1, 2]")], "JSON object"),
+    ("file", "workcell-nan-speed", lambda d: ["slice", MODELS / "tee.stl", "--out", d / "s", "--robot", workcell(d, max_joint_speed_rad_s=float("nan"))], "max_joint_speed_rad_s"),
+    ("file", "workcell-text-speed", lambda d: ["slice", MODELS / "tee.stl", "--out", d / "s", "--robot", workcell(d, linear_speed_mm_s="fast")], "linear_speed_mm_s"),
+    ("file", "workcell-fractional-rotations", lambda d: ["slice", MODELS / "tee.stl", "--out", d / "s", "--robot", workcell(d, rotations=2.5)], "rotations"),
+    ("file", "workcell-nozzle-nan", lambda d: ["slice", MODELS / "tee.stl", "--out", d / "s", "--robot", workcell(d, nozzle={"xyz_mm": [0, 0, float("nan")], "rpy_deg": [0, 0, 0]})], "xyz_mm"),
     ("file", "dxf-garbage", lambda d: ["drape", write(d / "g.dxf", "not a dxf"), "--surface", "brooks", "--out", d / "o"], "DXF"),
     # ---- resources: the guard names the number
     ("resource", "drape-step-1e-6", lambda d: ["drape", d / "c.dxf", "--surface", "brooks", "--out", d / "o", "--step", "1e-6"], "needed"),
@@ -272,6 +284,18 @@ def test_a_second_run_on_a_locked_out_fails_at_once(tmp_path, capsys):
             with output_lock(tmp_path / ".x.lock", tmp_path / "x"):
                 pass
     assert not (tmp_path / ".x.lock").exists()
+
+
+def test_two_slice_folders_on_one_out_cannot_both_win(tmp_path):
+    from curvslice.outdir import atomic_folder
+
+    with atomic_folder(tmp_path / "o") as first:
+        (first / "report.json").write_text("{}")
+        with pytest.raises(CurvsliceError, match="another curvslice run"):
+            with atomic_folder(tmp_path / "o"):
+                pass
+    assert (tmp_path / "o" / "report.json").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["o"]  # no lock or partial left behind
 
 
 def test_stale_split_files_go_with_a_new_shorter_program(tmp_path, capsys):
