@@ -88,6 +88,7 @@ CASES = [
     ("option", "drape-fill-spacing-zero", lambda d: ["drape", d / "c.dxf", "--surface", "brooks", "--fill-spacing", "0"], "--fill-spacing"),
     ("option", "drape-diameter-inf", lambda d: ["drape", d / "c.dxf", "--surface", "brooks", "--diameter", "inf"], "--diameter"),
     ("option", "drape-fill-angle-text", lambda d: ["drape", d / "c.dxf", "--surface", "brooks", "--fill-angle", "ten"], "not a number"),
+    ("option", "drape-surface-poly-nan", lambda d: ["drape", d / "c.dxf", "--surface", "poly:nan,1", "--out", d / "o"], "finite"),
     ("option", "drape-surface-poly-text", lambda d: ["drape", d / "c.dxf", "--surface", "poly:a,b", "--out", d / "o"], "coefficients"),
     ("option", "level-xs-inf", lambda d: ["level", "routine", "--xs", "0", "inf", "3", "--ys", "0", "10", "3", "--out", d / "o"], "--xs"),
     ("option", "level-count-fraction", lambda d: ["level", "routine", "--xs", "0", "10", "2.5", "--ys", "0", "10", "3", "--out", d / "o"], "COUNT"),
@@ -119,6 +120,8 @@ CASES = [
     ("file", "workcell-text-speed", lambda d: ["slice", MODELS / "tee.stl", "--out", d / "s", "--robot", workcell(d, linear_speed_mm_s="fast")], "linear_speed_mm_s"),
     ("file", "workcell-fractional-rotations", lambda d: ["slice", MODELS / "tee.stl", "--out", d / "s", "--robot", workcell(d, rotations=2.5)], "rotations"),
     ("file", "workcell-nozzle-nan", lambda d: ["slice", MODELS / "tee.stl", "--out", d / "s", "--robot", workcell(d, nozzle={"xyz_mm": [0, 0, float("nan")], "rpy_deg": [0, 0, 0]})], "xyz_mm"),
+    ("file", "view-incomplete-field", lambda d: ["view", d, "--zmq-url", "tcp://127.0.0.1:1"], "damaged"),
+    ("file", "view-corrupt-field", lambda d: ["view", write(d / "field.npz", b"PK\x03\x04broken").parent, "--zmq-url", "tcp://127.0.0.1:1"], "damaged"),
     ("file", "dxf-garbage", lambda d: ["drape", write(d / "g.dxf", "not a dxf"), "--surface", "brooks", "--out", d / "o"], "DXF"),
     # ---- resources: the guard names the number
     ("resource", "drape-step-1e-6", lambda d: ["drape", d / "c.dxf", "--surface", "brooks", "--out", d / "o", "--step", "1e-6"], "needed"),

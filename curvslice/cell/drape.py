@@ -417,6 +417,8 @@ def load_surface(spec: str) -> PolynomialSurface | MeshSurface:
             coeffs = tuple(float(c) for c in spec[5:].split(","))
         except ValueError:
             raise CurvsliceError(f"surface {spec!r}: coefficients must be numbers, e.g. poly:-0.002343,0,149.6") from None
+        if not all(math.isfinite(c) for c in coeffs):
+            raise CurvsliceError(f"surface {spec!r}: coefficients must be finite numbers")
         return PolynomialSurface(coeffs)
     path = Path(spec)
     if not path.is_file():

@@ -11,6 +11,7 @@ import argparse
 import os
 import time
 import webbrowser
+import zipfile
 from pathlib import Path
 
 from curvslice.errors import CurvsliceError
@@ -45,7 +46,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     html = _html_target(args.html, args.outdir) if args.html else None
-    folder = read_slice_folder(args.outdir)
+    try:
+        folder = read_slice_folder(args.outdir)
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise CurvsliceError(f"{args.outdir}: a file of the slice folder is damaged ({type(exc).__name__}: "
+                             f"{str(exc)[:120]}); `curvslice verify {args.outdir}` names it") from None
     viewer = open_viewer(args.zmq_url)
     try:
         placed = build_scene(viewer.vis, folder, glyph_stride=args.glyph_stride)
