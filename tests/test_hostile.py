@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import signal
 from pathlib import Path
@@ -331,6 +332,13 @@ def _tamper(folder: Path, how: str) -> None:
     if how.startswith("rm "):
         for p in folder.glob(how[3:]):
             p.unlink()
+    elif how == "flip nZ":  # on one deposition move in the middle of the G-code
+        path = folder / "toolpaths.gcode"
+        lines = path.read_text().split("\n")
+        moves = [i for i, line in enumerate(lines) if line.startswith("G1 ") and re.search(r" nZ(0\.[1-9]|1)", line)]
+        i = moves[len(moves) // 2]
+        lines[i] = re.sub(r"nZ(-?)", lambda m: "nZ" + ("" if m[1] else "-"), lines[i])
+        path.write_text("\n".join(lines))
     elif how.startswith("truncate "):
         p = folder / how[9:]
         p.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 3])
@@ -341,6 +349,7 @@ def _tamper(folder: Path, how: str) -> None:
 
 TAMPERS = [
     ("rm toolpaths.npz", "toolpaths files"),
+    ("flip nZ", "toolpaths.gcode orientations = npz"),
     ("rm toolpaths.gcode", "toolpaths files"),
     ("rm field.npz", "field files"),
     ("rm layers/layer_0002.ply", "layers files"),
@@ -374,5 +383,5 @@ def test_verify_json_on_a_robot_folder_lists_every_artefact_as_present(robot_sli
     checks = json.loads(out)
     artefacts = {c["name"]: c["passed"] for c in checks if c["stage"] == "artefacts"}
     assert artefacts == {"report.json": True, "field files": True, "layers files": True, "toolpaths files": True,
-                         "robot files": True, "robot programs": True}
+                         "toolpaths.gcode orientations = npz": True, "robot files": True, "robot programs": True}
     assert code == (0 if all(c["passed"] for c in checks) else 1) and "Traceback" not in err

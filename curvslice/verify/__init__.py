@@ -86,6 +86,26 @@ def _programs(outdir: Path, robot: object) -> list[Check]:
                   "no *.script or *.mod program written" if not files else "; ".join(bad))]
 
 
+def _gcode_orientations(outdir: Path) -> Check:
+    """Every move of ``toolpaths.gcode`` carries the orientation and layer of its ``toolpaths.npz``
+    sample (the G-code is what a printer runs: a flipped ``nZ`` on one line must not pass)."""
+    from curvslice.exporters.gcode6 import read_gcode6
+
+    g = read_gcode6(outdir / "toolpaths.gcode")
+    with np.load(outdir / "toolpaths.npz", allow_pickle=False) as z:
+        normals, layer = np.asarray(z["normals"], float), np.asarray(z["layer"])
+    name = "toolpaths.gcode orientations = npz"
+    if len(g["normals"]) != len(normals):
+        return Check("artefacts", name, False, f"{len(g['normals'])} moves", f"toolpaths.npz has {len(normals)} samples")
+    unit = normals / np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", unit, g["normals"]), -1.0, 1.0)))
+    worst = int(np.argmax(angle)) if len(angle) else 0
+    layers_differ = int(np.count_nonzero(g["layer"] != layer))
+    passed = (not len(angle) or angle[worst] <= 0.01) and layers_differ == 0
+    return Check("artefacts", name, passed, f"max {angle[worst] if len(angle) else 0.0:.3g}°",
+                 "" if passed else f"move {worst}: {angle[worst]:.3g}° off; {layers_differ} moves on another layer")
+
+
 def artefact_checks(outdir: Path) -> tuple[list[Check], set[str]]:
     """Checks that every artefact report.json promises exists and loads; also the stages whose
     artefacts are missing or broken (their re-checks are skipped)."""
@@ -117,6 +137,8 @@ def artefact_checks(outdir: Path) -> tuple[list[Check], set[str]]:
                              "; ".join(problems[:5]) + (f" (+{len(problems) - 5} more)" if len(problems) > 5 else "")))
         if problems:
             broken.add(stage)
+    if "toolpaths" in stages and "toolpaths" not in broken:
+        results.append(_gcode_orientations(outdir))
     results += _programs(outdir, report.get("robot"))
     listed = report.get("files", [])
     if isinstance(listed, list) and listed:
