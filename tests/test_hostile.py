@@ -339,6 +339,11 @@ def _tamper(folder: Path, how: str) -> None:
         i = moves[len(moves) // 2]
         lines[i] = re.sub(r"nZ(-?)", lambda m: "nZ" + ("" if m[1] else "-"), lines[i])
         path.write_text("\n".join(lines))
+    elif how == "shift a voxel's layer":  # one voxel of the last layer moved one layer down
+        z = dict(np.load(folder / "field.npz"))
+        g = z["growing"]
+        g[tuple(np.argwhere(g == g.max())[0])] -= 1
+        np.savez_compressed(folder / "field.npz", **z)
     elif how.startswith("truncate "):
         p = folder / how[9:]
         p.write_bytes(p.read_bytes()[: len(p.read_bytes()) // 3])
@@ -350,6 +355,7 @@ def _tamper(folder: Path, how: str) -> None:
 TAMPERS = [
     ("rm toolpaths.npz", "toolpaths files"),
     ("flip nZ", "toolpaths.gcode orientations = npz"),
+    ("shift a voxel's layer", "field.npz layer sizes = report.json"),
     ("rm toolpaths.gcode", "toolpaths files"),
     ("rm field.npz", "field files"),
     ("rm layers/layer_0002.ply", "layers files"),
@@ -383,5 +389,6 @@ def test_verify_json_on_a_robot_folder_lists_every_artefact_as_present(robot_sli
     checks = json.loads(out)
     artefacts = {c["name"]: c["passed"] for c in checks if c["stage"] == "artefacts"}
     assert artefacts == {"report.json": True, "field files": True, "layers files": True, "toolpaths files": True,
-                         "toolpaths.gcode orientations = npz": True, "robot files": True, "robot programs": True}
+                         "toolpaths.gcode orientations = npz": True, "robot files": True, "robot programs": True,
+                         "field.npz layer sizes = report.json": True}
     assert code == (0 if all(c["passed"] for c in checks) else 1) and "Traceback" not in err

@@ -106,6 +106,23 @@ def _gcode_orientations(outdir: Path) -> Check:
                  "" if passed else f"move {worst}: {angle[worst]:.3g}° off; {layers_differ} moves on another layer")
 
 
+def _field_matches_report(outdir: Path, summary: object) -> Check | None:
+    """The voxel count of every layer in ``field.npz`` equals report.json's ``field.layer_sizes``: a
+    voxel moved to the next or previous layer (which can keep support and accessibility valid)
+    changes two of them. None when the report has no layer sizes."""
+    sizes = summary.get("layer_sizes") if isinstance(summary, dict) else None
+    if not isinstance(sizes, list):
+        return None
+    with np.load(outdir / "field.npz", allow_pickle=False) as z:
+        counts = np.bincount(np.asarray(z["growing"]).ravel().clip(0).astype(np.int64))[1:].tolist()
+    counts += [0] * (len(sizes) - len(counts))
+    differ = [k + 1 for k, (a, b) in enumerate(zip(counts, sizes)) if a != b] + (
+        [len(sizes) + 1] if len(counts) > len(sizes) else [])
+    return Check("artefacts", "field.npz layer sizes = report.json", not differ, f"{len(sizes)} layers",
+                 f"layers {differ[:6]} differ (npz {[counts[k - 1] for k in differ[:3] if k <= len(counts)]} vs "
+                 f"report {[sizes[k - 1] for k in differ[:3] if k <= len(sizes)]})" if differ else "")
+
+
 def artefact_checks(outdir: Path) -> tuple[list[Check], set[str]]:
     """Checks that every artefact report.json promises exists and loads; also the stages whose
     artefacts are missing or broken (their re-checks are skipped)."""
@@ -137,6 +154,8 @@ def artefact_checks(outdir: Path) -> tuple[list[Check], set[str]]:
                              "; ".join(problems[:5]) + (f" (+{len(problems) - 5} more)" if len(problems) > 5 else "")))
         if problems:
             broken.add(stage)
+    if "field" in stages and "field" not in broken and (found := _field_matches_report(outdir, report.get("field"))):
+        results.append(found)
     if "toolpaths" in stages and "toolpaths" not in broken:
         results.append(_gcode_orientations(outdir))
     results += _programs(outdir, report.get("robot"))
