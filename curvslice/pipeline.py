@@ -485,6 +485,8 @@ def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, u
         if tmp is not None:
             if after is not None:
                 after(result, tmp)
+            # every file written, so `curvslice verify` can require each one (a deleted file is a FAIL)
+            result.report["files"] = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
             (tmp / "report.json").write_text(json.dumps(result.report, indent=2, default=_jsonable))
     if out is not None:
         result.folder = Path(out)

@@ -63,6 +63,7 @@ from scipy.spatial.transform import Rotation
 
 from curvslice.errors import CurvsliceError
 from curvslice.kinematics import ROBOT_NAMES, Robot, rigid_inverse
+from curvslice.validate import check_number
 
 
 @dataclass(frozen=True)
@@ -132,7 +133,7 @@ def _vector(spec: dict, key: str, n: int, where: str) -> list[float]:
     value = spec.get(key, [0.0] * n)
     if not (isinstance(value, list) and len(value) == n and all(isinstance(v, (int, float)) for v in value)):
         raise CurvsliceError(f"workcell {where}: '{key}' must be a list of {n} numbers")
-    return [float(v) for v in value]
+    return [check_number(v, f"workcell {where}: '{key}'[{i}]") for i, v in enumerate(value)]
 
 
 def _pose(spec: dict, where: str) -> np.ndarray:
@@ -147,7 +148,7 @@ def _body(spec: dict, where: str) -> Body:
     if kind == "box":
         dims = tuple(_vector(spec, "size_mm", 3, name))
     elif kind in ("cylinder", "cone"):
-        dims = (float(spec.get("radius_mm", 0)), float(spec.get("length_mm", 0)))
+        dims = tuple(check_number(spec.get(k, 0), f"workcell body '{name}': '{k}'", "mm") for k in ("radius_mm", "length_mm"))
     else:
         raise CurvsliceError(f"workcell body '{name}': type must be 'box', 'cylinder' or 'cone' (got {kind!r})")
     if min(dims) <= 0:
@@ -165,8 +166,26 @@ def _body_dict(body: Body) -> dict[str, object]:
     return out
 
 
+#: Scalar keys of the workcell JSON: (lowest, lowest excluded, highest, unit); NaN, inf and text are refused.
+_SCALARS: dict[str, tuple[float, bool, float | None, str]] = {
+    "max_joint_speed_rad_s": (0, True, None, "rad/s"), "linear_speed_mm_s": (0, True, None, "mm/s"),
+    "travel_speed_mm_s": (0, True, None, "mm/s"), "min_step_time_s": (0, True, None, "s"),
+    "tool_turn_speed_deg_s": (0, False, None, "deg/s"), "rotations": (1, False, 3600, "rotations"),
+    "max_axis_deviation_deg": (0, False, 89.999, "degrees"), "axis_deviation_step_deg": (0, True, 90, "degrees"),
+}
+
+
 def workcell_from_dict(spec: dict, source: str = "workcell") -> Workcell:
     """Validate and build a :class:`Workcell` from its JSON object (see the module docstring)."""
+    for key, (lo, lo_open, hi, unit) in _SCALARS.items():
+        if key in spec:
+            check_number(spec[key], f"{source}: '{key}'", unit, lo=lo, lo_open=lo_open, hi=hi, integer=key == "rotations")
+    platform = spec.get("platform", {})
+    if not isinstance(platform, dict):
+        raise CurvsliceError(f"{source}: 'platform' must be an object with radius_mm and thickness_mm")
+    for key in ("radius_mm", "thickness_mm"):
+        if key in platform:
+            check_number(platform[key], f"{source}: 'platform.{key}'", "mm", lo=0, lo_open=True)
     robot = str(spec.get("robot", "")).lower()
     if robot not in ROBOT_NAMES:
         raise CurvsliceError(f"{source}: 'robot' must be one of {', '.join(ROBOT_NAMES)} (got {robot!r})")

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.errors import CurvsliceError
+from curvslice.validate import require_finite
 
 COLUMNS = ("layer", "path", "index", "t", "x", "y", "z", "nx", "ny", "nz",
            "q1", "q2", "q3", "q4", "q5", "q6", "segment", "extruding")
@@ -34,6 +35,7 @@ def write_joints_csv(
     extruding: np.ndarray,
 ) -> None:
     """Write the rows (N of each array; positions/normals/q with 3/3/6 columns)."""
+    require_finite(f"joints CSV writer ({Path(path).name})", t=t, positions=positions, normals=normals, q=q)
     n = len(q)
     ints = np.column_stack([layer, path_id, index]).astype(np.int64)
     with open(path, "w") as f:
