@@ -390,5 +390,5 @@ def test_verify_json_on_a_robot_folder_lists_every_artefact_as_present(robot_sli
     artefacts = {c["name"]: c["passed"] for c in checks if c["stage"] == "artefacts"}
     assert artefacts == {"report.json": True, "field files": True, "layers files": True, "toolpaths files": True,
                          "toolpaths.gcode orientations = npz": True, "robot files": True, "robot programs": True,
-                         "field.npz layer sizes = report.json": True}
+                         "field.npz layer sizes = report.json": True, "files listed in report.json": True}
     assert code == (0 if all(c["passed"] for c in checks) else 1) and "Traceback" not in err
