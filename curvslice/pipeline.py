@@ -41,6 +41,7 @@ from curvslice.outdir import atomic_folder
 from curvslice.peeling_field import peeling_field
 from curvslice.platform import DEFAULT_MARGIN, DEFAULT_THICKNESS, disc_platform, load_platform
 from curvslice.solid import load_solid
+from curvslice.validate import check_number
 from curvslice.toolpaths import Toolpaths, ToolpathSettings, plan_toolpaths, save_toolpaths
 from curvslice.verify.toolpaths import layer_cover
 from curvslice.voxelize import VoxelGrid, voxelize
@@ -63,40 +64,71 @@ class Settings:
 
     # placement of the model (the field stage loads it)
     up: str = setting("z", "model axis that points up", "field", choices=("x", "-x", "y", "-y", "z", "-z"))
-    size: float | None = setting(None, "scale uniformly so the longest extent is SIZE", "field", "mm")
-    scale: float = setting(1.0, "uniform scale factor (ignored with size)", "field")
+    size: float | None = setting(None, "scale uniformly so the longest extent is SIZE", "field", "mm",
+                                  lo=0.01, hi=10_000.0)
+    scale: float = setting(1.0, "uniform scale factor (ignored with size)", "field", lo=1e-6, hi=1e6)
     # platform T (§3.4.1: it takes part in every convex front)
     platform: str | None = setting(None, "platform mesh in the model frame (top at z = 0); default: a disc slab", "field")
-    platform_margin: float = setting(DEFAULT_MARGIN, "disc radius beyond the footprint", "field", "mm")
-    platform_thickness: float = setting(DEFAULT_THICKNESS, "disc thickness", "field", "mm")
+    platform_margin: float = setting(DEFAULT_MARGIN, "disc radius beyond the footprint", "field", "mm", lo=0.0, hi=1000.0)
+    platform_thickness: float = setting(DEFAULT_THICKNESS, "disc thickness", "field", "mm", lo=0.1, hi=1000.0)
     # volume decomposition (§3.4)
-    voxel: float = setting(1.0, "voxel width w (the thesis used about the nozzle diameter)", "field", "mm")
+    voxel: float = setting(1.0, "voxel width w (the thesis used about the nozzle diameter)", "field", "mm",
+                           lo=0.01, hi=100.0)
     method: str = setting("pg-sp-gcfa", "growing-field method: gcfa (Alg. 1), sp-gcfa (Alg. 3), pg-sp-gcfa (Alg. 5)",
                           "field", choices=METHODS)
-    delta_f: int = setting(1, "Δf, the peeling-field threshold step of Alg. 5", "field")
-    eps: float = setting(GROW_EPS, "ε of the inside test (Definitions 2-3), in voxel widths", "field", "w")
-    peel_eps: float = setting(PEEL_EPS, "ε of the peeling shells (Alg. 4), in voxel widths", "field", "w")
-    memory_limit: float = setting(8.0, "refuse grids needing more than this", "field", "GiB")
+    delta_f: int = setting(1, "Δf, the peeling-field threshold step of Alg. 5", "field", lo=1, hi=1000)
+    eps: float = setting(GROW_EPS, "ε of the inside test (Definitions 2-3), in voxel widths", "field", "w",
+                         lo=0.0, hi=10.0)
+    peel_eps: float = setting(PEEL_EPS, "ε of the peeling shells (Alg. 4), in voxel widths", "field", "w",
+                              lo=0.0, hi=10.0)
+    memory_limit: float = setting(8.0, "refuse grids needing more than this", "field", "GiB", lo=0.01, hi=4096.0)
     # working surfaces (§3.4.5)
-    layer_height: float | None = setting(None, "d of Eq. 3.2 (default: the voxel width)", "layers", "mm")
+    layer_height: float | None = setting(None, "d of Eq. 3.2 (default: the voxel width; 0.25-4 w)", "layers", "mm",
+                                          lo=0.0025, hi=400.0)
     # tool-paths (§3.5.1-3.5.2)
     path_width: float | None = setting(None, "spacing of the spiral passes (default: voxel / 0.8, the nozzle of §3.6)",
-                                       "toolpaths", "mm")
-    step: float = setting(1.0, "re-sampling distance along the paths (§3.5.2)", "toolpaths", "mm")
-    filament: float = setting(1.75, "filament diameter", "toolpaths", "mm")
-    feed: float = setting(600.0, "nozzle speed along the paths", "toolpaths", "mm/min")
+                                       "toolpaths", "mm", lo=0.005, hi=300.0)
+    step: float = setting(1.0, "re-sampling distance along the paths (§3.5.2)", "toolpaths", "mm", lo=0.05, hi=50.0)
+    filament: float = setting(1.75, "filament diameter", "toolpaths", "mm", lo=0.1, hi=10.0)
+    feed: float = setting(600.0, "nozzle speed along the paths", "toolpaths", "mm/min", lo=1.0, hi=60_000.0)
     max_tilt: float = setting(float(np.radians(40.0)), "largest angle between tool and layer normal (the shipped "
-                              "nozzle cone clears 40°)", "toolpaths", "rad", degrees=True)
+                              "nozzle cone clears 40°)", "toolpaths", "rad", degrees=True, lo=0.0,
+                              hi=float(np.radians(89.0)))
     gap_passes: bool = setting(True, "extra passes through the gaps the spirals leave (§3.7)", "toolpaths",
                                flag="--no-gap-passes", negate=True)
     # robot (§3.5.3, §4.3.1)
     robot: str | None = setting(None, "workcell: ur3, ur5, ur10, irb120 (shipped) or a workcell JSON file; "
                                 "without it the robot stage is skipped", "robot")
     rotations: int | None = setting(None, "p, rotations about the nozzle axis per waypoint (default: the workcell's)",
-                                    "robot")
-    max_rotations: int | None = setting(None, "largest p when doubling to remove splits (default: 4 p)", "robot")
+                                    "robot", lo=1, hi=720)
+    max_rotations: int | None = setting(None, "largest p when doubling to remove splits (default: 4 p)", "robot",
+                                        lo=1, hi=2880)
     motion_cost: str = setting("l1", "edge weight: Eq. 3.4 (l1) or Eq. 4.5 (quadratic)", "robot",
                                choices=("l1", "quadratic"))
+
+    def __post_init__(self) -> None:
+        """Every number finite and in its range (unit named), choices and cross-field limits: checked when
+        the settings are made, before any stage runs (issue 15)."""
+        for f in dataclasses.fields(self):
+            value, m = getattr(self, f.name), f.metadata
+            if value is None and f.default is None:
+                continue
+            if "choices" in m and value not in m["choices"]:
+                raise CurvsliceError(f"setting {f.name} must be one of {', '.join(m['choices'])}, got {value!r}")
+            if "lo" in m:
+                shown = float(np.degrees(value)) if m.get("degrees") and isinstance(value, (int, float)) else value
+                lo, hi = (float(np.degrees(m["lo"])), float(np.degrees(m["hi"]))) if m.get("degrees") else (m["lo"], m["hi"])
+                check_number(shown, f"setting {f.name}", "degrees" if m.get("degrees") else m["unit"], lo=lo, hi=hi,
+                             integer=isinstance(f.default, int) or f.type == "int | None")
+        w = self.voxel
+        for name, low, high in (("layer_height", 0.25, 4.0), ("path_width", 0.5, 3.0)):
+            value = getattr(self, name)
+            if value is not None and not low * w <= value <= high * w:
+                raise CurvsliceError(f"setting {name} must lie between {low:g} and {high:g} voxel widths "
+                                     f"({low * w:g}-{high * w:g} mm at voxel {w:g} mm), got {value:g} mm")
+        if self.rotations and self.max_rotations and self.max_rotations < self.rotations:
+            raise CurvsliceError(f"setting max_rotations ({self.max_rotations}) must be at least rotations "
+                                 f"({self.rotations})")
 
     def replace(self, **changes: Any) -> Settings:
         """A copy with ``changes`` (unknown names are an error)."""
@@ -186,6 +218,10 @@ def run_field(ctx: Context) -> FieldResult:
     start = time.perf_counter()
     solid, load = _load(ctx)
     timings["load"] = time.perf_counter() - start
+    extent = float(solid.extents.max())
+    if extent < 4 * s.voxel:
+        raise CurvsliceError(f"voxel {s.voxel:g} mm is too coarse for a model {extent:.3g} mm across (fewer than 4 "
+                             f"voxels): choose --voxel {extent / 20:.2g} or less")
     platform = load_platform(s.platform) if s.platform else disc_platform(
         solid, margin=s.platform_margin, thickness=s.platform_thickness)
     start = time.perf_counter()
@@ -269,6 +305,9 @@ def run_toolpaths(ctx: Context) -> ToolpathsResult:
     with ctx.bar("tool-paths", len(layers), unit="layer") as bar:
         tp = plan_toolpaths(layers, settings, progress=bar)
     seconds = time.perf_counter() - start
+    if not len(tp.positions):
+        raise CurvsliceError(f"no tool-path fits on any of the {len(layers)} layers (every region is narrower than "
+                             f"the path width {settings.path_width:g} mm): choose a smaller --voxel or --path-width")
     cover = [layer_cover(m, tp.positions[tp.layer == i], tp.path[tp.layer == i], settings.path_width, seed=i,
                          bead=tp.bead[tp.layer == i]) for i, m in enumerate(layers, start=1) if len(m.faces)]
     rows = tp.layers
@@ -315,6 +354,10 @@ def run_robot(ctx: Context) -> RobotResult:
     with ctx.bar(f"robot motion ({cell.name})", n, unit="waypoint") as bar:
         motion = plan_print(robot, cell, toolpaths, lambda layer: scene.for_layer(layers, layer),
                             cost=s.motion_cost, max_rotations=s.max_rotations, progress=bar.update)
+    if n and not len(motion.q):
+        raise CurvsliceError(f"the workcell {cell.name} reaches none of the {n} waypoints with a collision-free pose: "
+                             "move the part within the arm's reach (workcell JSON: platform/nozzle pose) or pick "
+                             "another robot")
     report = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n),
               "timings_s": {"robot": round(time.perf_counter() - start, 3)}}
     if not ctx.quiet:
@@ -476,6 +519,10 @@ def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, u
     """
     settings = settings or Settings()
     stage(until)  # an unknown name is an error before any work
+    if settings.robot is not None and STAGE_NAMES.index(until) >= STAGE_NAMES.index("robot"):
+        from curvslice.workcell import load_workcell
+
+        load_workcell(settings.robot)  # a bad workcell fails now, not after the slicing stages
     keys = stage_keys(model, settings)
     old = _reusable(resume, keys, redo) if resume is not None else {}
     protect = () if isinstance(model, trimesh.Trimesh) else (Path(model),)
