@@ -8,9 +8,10 @@ decomposition can be replayed exactly on the full-resolution model (:func:`repla
   cross-section by more than 20 %, scored by R(M_i) + R(M_j).
 - Region merging: a child is merged into its parent when the merged part, printed from the
   parent's base plane, is no riskier than the two apart.
-- Fine decomposition (Eq. 2.2): among the ``top_k`` riskiest parts, the plane out of 100 normals
-  on the part's upper hemisphere × offsets every 5 mm that removes most risky area and keeps
-  Constraints I and II is applied, until every part's risky area is within tolerance. Candidate
+- Fine decomposition (Eq. 2.2): the riskiest part is clipped by the plane out of 100 normals on
+  its upper hemisphere × offsets every 5 mm that removes most risky area and keeps Constraints I
+  and II; when it has no such plane the next of the ``top_k`` riskiest is tried. Repeated until
+  every part's risky area is within tolerance (or ``max_parts``). Candidate
   planes are ranked on area-weighted surface samples (all offsets of a normal at once by
   cumulative sums); the best few are then cut exactly and checked.
 """
@@ -69,7 +70,7 @@ class Settings:
     risky_tolerance: float = 1.0  # mm²: a part is safe below this (not stated in the thesis)
     min_part_volume_fraction: float = 0.005  # no sliver parts (not stated)
     samples: int = 6000  # surface samples ranking the Eq. 2.2 candidates
-    exact_candidates: int = 8  # best-ranked planes cut exactly per part
+    exact_candidates: int = 24  # best-ranked planes cut exactly per part
     max_parts: int = 16
     seed: int = 0
 
@@ -212,21 +213,29 @@ def rank_cuts(piece: Piece, root_direction: np.ndarray, s: Settings) -> list[tup
     r_s = np.cumsum(low, axis=1)[:, :-1]  # offsets lo + step·(l + 1), l < nb - 1
     r_t = (up.sum(axis=1, keepdims=True) - np.cumsum(up, axis=1))[:, :-1]
     gain = lower_risk.sum() - (r_s + r_t)
-    order = np.argsort(-gain, axis=None)
-    out = []
-    for idx in order:
-        k, l = divmod(int(idx), nb - 1)
-        if gain[k, l] <= 0:
-            break
-        out.append((float(gain[k, l]), Plane(K[k], float(lo[k] + s.offset_step * (l + 1)))))
-    return out
+    if gain.shape[1] == 0:
+        return []
+    # planes cutting through the base face would leave part of the base above them
+    base_v = mesh.vertices[mesh.faces[base_face_mask(mesh, piece.base)].ravel()]
+    if len(base_v):
+        top_base = (base_v @ K.T).max(axis=0)
+        offsets = lo[:, None] + s.offset_step * (np.arange(nb - 1) + 1)[None, :]
+        gain = np.where(offsets > top_base[:, None], gain, -np.inf)
+    best_l = gain.argmax(axis=1)  # one offset per normal keeps the candidates diverse
+    best = gain[np.arange(len(K)), best_l]
+    return [(float(best[k]), Plane(K[k], float(lo[k] + s.offset_step * (best_l[k] + 1))))
+            for k in np.argsort(-best) if best[k] > 0]
 
 
 def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction: np.ndarray, total_volume: float,
                        s: Settings) -> list[Cut]:
     """Greedy refinement by optimal cutting planes (Eq. 2.2) under Constraints I and II."""
+    known: dict[int, tuple[manifold3d.Manifold, float]] = {}
     while len(pieces) < s.max_parts:
-        risk = {i: part_risk(p, s.alpha_max) for i, p in pieces.items()}
+        for i, p in pieces.items():
+            if i not in known or known[i][0] is not p.solid:
+                known[i] = (p.solid, part_risk(p, s.alpha_max))
+        risk = {i: known[i][1] for i in pieces}
         queue = sorted((i for i in risk if risk[i] > s.risky_tolerance), key=lambda i: -risk[i])[: s.top_k]
         best = None
         for g in queue:
@@ -241,7 +250,7 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                     continue
                 gain = risk[g] - part_risk(Piece(below, piece.base, None), s.alpha_max) \
                     - risky_area(to_trimesh(top), plane, s.alpha_max)
-                if gain <= 1e-6 or (best is not None and gain <= best[0]):
+                if gain <= 1e-6:
                     continue
                 section = _section(top, plane)
                 if any(sections_intersect(plane, section, q.base, q.section) for i, q in pieces.items() if i != g) \
@@ -249,6 +258,8 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                     continue
                 best = (gain, g, plane, below, top, above, section)
                 break  # candidates come best first
+            if best is not None:
+                break  # the riskiest part that can be improved is refined first
         if best is None:
             break
         _, g, plane, below, top, above, section = best

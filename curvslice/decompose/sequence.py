@@ -61,49 +61,54 @@ def bfs_tree(root: int, edges: list[tuple[int, int]]) -> tuple[list[int], dict[i
 
 def plan_sequence(coarse: CoarseDecomposition, alpha_max: float, root: int | None = None,
                   directions: int = 400) -> Sequence:
-    """Phase II for one root, or the best root when ``root`` is None."""
+    """Phase II for one root, or the best root when ``root`` is None.
+
+    For a root r and a candidate root direction d (``directions`` nearly uniform on the sphere),
+    the separating planes facing down along d are not cut (Constraint II); every patch is then
+    printed along the plane normal of its nearest cut ancestor edge, or d in the root's region,
+    and (r, d) minimizing the total facing-down area of all patches is kept (faces on the
+    platform, within 0.5 mm of the lowest point along d, excluded).
+    """
     mesh, labels = coarse.mesh, coarse.labels
     normals, area = mesh.face_normals, mesh.area_faces
-    heights = mesh.vertices
-    candidates = fibonacci_sphere(directions)
+    cand = fibonacci_sphere(directions)
     n_patches = len(coarse.areas)
-    roots = range(n_patches) if root is None else [root]
+    onehot = np.eye(n_patches)[labels]  # (F, P)
+    low = (mesh.vertices @ cand.T).min(axis=0)
+    above = (mesh.vertices[mesh.faces] @ cand.T).max(axis=1) > low + 0.5  # (F, D)
+    down_d = onehot.T @ (area[:, None] * ((normals @ cand.T + np.sin(alpha_max) < 0) & above))  # (P, D)
+    edges = list(coarse.planes)
+    plane_n = np.array([coarse.planes[e].normal for e in edges])  # oriented low -> high patch index
+    down_e = onehot.T @ (area[:, None] * (normals @ plane_n.T + np.sin(alpha_max) < 0))  # (P, E)
+    down_e_rev = onehot.T @ (area[:, None] * (-normals @ plane_n.T + np.sin(alpha_max) < 0))
     best: Sequence | None = None
-    for r in roots:
-        order, parent = bfs_tree(r, list(coarse.planes))
-        planes = {}
-        for j, i in parent.items():
-            p = coarse.planes[(min(i, j), max(i, j))]
-            planes[j] = p if i < j else Plane(-p.normal, -p.offset)
-        # root direction: facing-down area of the root patch (faces on the lowest plane excluded);
-        # a child whose plane would face down along d is not cut and counts with the root
-        low = (heights @ candidates.T).min(axis=0)
-
-        def facing_down(face: np.ndarray) -> np.ndarray:
-            tri_h = (heights[mesh.faces[face]] @ candidates.T).max(axis=1)  # (Fr, D)
-            down = (normals[face] @ candidates.T + np.sin(alpha_max) < 0) & (tri_h > low + 0.5)
-            return area[face] @ down
-
-        root_risk = facing_down(labels == r)
-        for j, i in parent.items():
-            if i == r:
-                up = candidates @ planes[j].normal > 1e-6
-                own = float(area[(labels == j) & risky_mask(normals, planes[j].normal, alpha_max)].sum())
-                root_risk = root_risk + np.where(up, own, facing_down(labels == j))
-        k = int(np.argmin(root_risk))
-        d = candidates[k]
-        # deeper planes facing down (Constraint II) are not cut: those patches stay with their parent
-        planes = {j: p for j, p in planes.items() if faces_up(p.normal, d)}
-        # total: every patch along the direction of its nearest cut ancestor (the root: d)
-        direction = {r: d}
+    for r in (range(n_patches) if root is None else [root]):
+        order, parent = bfs_tree(r, edges)
+        edge_of = {j: edges.index((min(i, j), max(i, j))) for j, i in parent.items()}
+        sign = {j: 1.0 if parent[j] < j else -1.0 for j in parent}
+        up = np.stack([sign[j] * (cand @ plane_n[edge_of[j]]) > 1e-6 for j in order[1:]], axis=0) \
+            if parent else np.zeros((0, len(cand)), bool)
+        row = {j: k for k, j in enumerate(order[1:])}
+        # source[j]: per direction, -1 = printed along d (root region) else the child whose plane it uses
+        source = {r: np.full(len(cand), -1)}
+        total = down_d[r].copy()
         for j in order[1:]:
-            direction[j] = planes[j].normal if j in planes else direction[parent[j]]
-        lowest = (heights[mesh.faces] @ d).max(axis=1) <= low[k] + 0.5
-        total = sum(float(area[(labels == j) & ~lowest & risky_mask(normals, direction[j], alpha_max)].sum())
-                    for j in order)
-        if best is None or total < best.score - 1e-9:
-            best = Sequence(r, order, parent, planes, d, total)
-    if best is None:
-        raise ValueError("no root direction found")
+            source[j] = np.where(up[row[j]], j, source[parent[j]])
+            along = np.where(source[j] < 0, down_d[j], 0.0)
+            for s_ in set(source[j][source[j] >= 0].tolist()):
+                e = edge_of[s_]
+                val = (down_e if sign[s_] > 0 else down_e_rev)[j, e]
+                along = np.where(source[j] == s_, val, along)
+            total = total + along
+        k = int(np.argmin(total))
+        d = cand[k]
+        if best is None or total[k] < best.score - 1e-9:
+            planes = {}
+            for j in order[1:]:
+                if up[row[j], k]:
+                    p = coarse.planes[edges[edge_of[j]]]
+                    planes[j] = p if sign[j] > 0 else Plane(-p.normal, -p.offset)
+            best = Sequence(r, order, parent, planes, d, float(total[k]))
+    assert best is not None
     assert all(faces_up(p.normal, best.root_direction) for p in best.planes.values())
     return best
