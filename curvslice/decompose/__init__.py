@@ -21,7 +21,7 @@ import trimesh
 from curvslice.decompose.constraints import constraint_one, faces_up
 from curvslice.decompose.fine_tuning import Settings, coarse_parts, fine_decomposition, merge_regions, replay
 from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_frame, to_manifold, to_trimesh
-from curvslice.decompose.risky import risky_area, lowest_plane
+from curvslice.decompose.risky import PLATFORM_CONTACT_MM, lowest_plane, risky_area
 from curvslice.decompose.sequence import plan_sequence
 from curvslice.decompose.shape_analysis import coarse_decomposition
 
@@ -48,6 +48,7 @@ class Decomposition:
     k: int
     timings: dict[str, float] = field(default_factory=dict)
     analysis_faces: int = 0
+    model_volume: float = 0.0
 
     def constraint_one_violations(self) -> list[tuple[int, int]]:
         pairs = constraint_one([p.base for p in self.parts], [p.section for p in self.parts])
@@ -90,9 +91,10 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
     for i, sol in solids.items():
         m = to_trimesh(sol)
         base = lowest_plane(m.vertices, seq.root_direction) if i == seq.root else next(c.plane for c in cuts if c.new == i)
-        sec = cross_section(sol, base)
+        root = i == seq.root
+        sec = cross_section(sol, base, PLATFORM_CONTACT_MM if root else 1e-3)
         centre = base.frame() @ np.r_[np.asarray(sec.centroid.coords[0]) if not sec.is_empty else np.zeros(2), 0, 1]
-        parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max), centre[:3]))
+        parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max, root), centre[:3]))
     t["replay"] = time.perf_counter()
     order = _print_order(seq.root, {p.index: p.parent for p in parts})
     parts.sort(key=lambda p: order.index(p.index))
@@ -103,7 +105,8 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         timings[n] = t[n] - prev
         prev = t[n]
     timings["total"] = t["replay"] - t["start"]
-    return Decomposition(parts, seq.root_direction, s.alpha_max, len(coarse.areas), coarse.k, timings, len(simple.faces))
+    return Decomposition(parts, seq.root_direction, s.alpha_max, len(coarse.areas), coarse.k, timings, len(simple.faces),
+                         float(full.volume()))
 
 
 def _print_order(root: int, parent: dict[int, int | None]) -> list[int]:
@@ -150,7 +153,8 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str) -> dict:
         "risky_area_mm2": [q["risky_area_mm2"] for q in parts],
         "constraint_one_violations": [list(v) for v in one],
         "constraint_two_violations": two,
-        "volume_model_mm3": float(sum(q["volume_mm3"] for q in parts)),
+        "volume_model_mm3": dec.model_volume,
+        "volume_parts_mm3": float(sum(q["volume_mm3"] for q in parts)),
         "timings_s": dec.timings,
     }
     (folder / "parts.json").write_text(json.dumps({"root_direction": dec.root_direction.tolist(),

@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from curvslice.decompose.constraints import faces_up, sections_intersect
 from curvslice.decompose.parts import Plane, cross_section, plane_frame, split, to_trimesh, union
-from curvslice.decompose.risky import base_face_mask, lowest_plane, risky_area, risky_mask
+from curvslice.decompose.risky import PLATFORM_CONTACT_MM, base_face_mask, lowest_plane, risky_area, risky_mask
 from curvslice.decompose.sequence import Sequence, fibonacci_sphere
 from curvslice.decompose.shape_analysis import CoarseDecomposition
 
@@ -76,7 +76,7 @@ class Settings:
 
 
 def part_risk(piece: Piece, alpha_max: float) -> float:
-    return risky_area(to_trimesh(piece.solid), piece.base, alpha_max)
+    return risky_area(to_trimesh(piece.solid), piece.base, alpha_max, platform=piece.parent is None)
 
 
 def _section(solid: manifold3d.Manifold, plane: Plane) -> shapely.MultiPolygon:
@@ -112,7 +112,7 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
     tol = 2.0 * float(mesh.edges_unique_length.mean())
     centres = mesh.triangles_center
     root_base = lowest_plane(mesh.vertices, seq.root_direction)
-    pieces = {seq.root: Piece(solid, root_base, None, _section(solid, root_base))}
+    pieces = {seq.root: Piece(solid, root_base, None, cross_section(solid, root_base, PLATFORM_CONTACT_MM))}
     owner = {p: seq.root for p in range(len(coarse.areas))}
     cuts: list[Cut] = []
     for j in seq.order[1:]:
@@ -145,7 +145,8 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
             if cap > (1 + s.max_section_growth) * ref_area:
                 continue
             left = union([below, *rest])
-            score = risky_area(to_trimesh(left), pieces[holder].base, s.alpha_max) + risky_area(km, plane, s.alpha_max)
+            score = part_risk(Piece(left, pieces[holder].base, pieces[holder].parent), s.alpha_max) \
+                + risky_area(km, plane, s.alpha_max)
             if best is None or score < best[0] - 1e-9:
                 best = (score, plane, kept, left, keep, rest)
         if best is None:
@@ -160,9 +161,9 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
     return pieces, cuts
 
 
-def _base_area(solid: manifold3d.Manifold, base: Plane) -> float:
+def _base_area(solid: manifold3d.Manifold, base: Plane, platform: bool) -> float:
     mesh = to_trimesh(solid)
-    return float(mesh.area_faces[base_face_mask(mesh, base)].sum())
+    return float(mesh.area_faces[base_face_mask(mesh, base, platform)].sum())
 
 
 def _centre(solid: manifold3d.Manifold) -> np.ndarray:
@@ -196,7 +197,7 @@ def rank_cuts(piece: Piece, root_direction: np.ndarray, s: Settings) -> list[tup
     n = mesh.face_normals[face]
     w = mesh.area / s.samples
     d = piece.base.normal
-    lower_risk = w * (risky_mask(n, d, s.alpha_max) & ~base_face_mask(mesh, piece.base)[face])
+    lower_risk = w * (risky_mask(n, d, s.alpha_max) & ~base_face_mask(mesh, piece.base, piece.parent is None)[face])
     K = fibonacci_sphere(s.normals, hemisphere=True) @ plane_frame(d, np.zeros(3))[:3, :3].T
     K = K[[faces_up(k, root_direction) for k in K]]
     if len(K) == 0:
@@ -216,7 +217,7 @@ def rank_cuts(piece: Piece, root_direction: np.ndarray, s: Settings) -> list[tup
     if gain.shape[1] == 0:
         return []
     # planes cutting through the base face would leave part of the base above them
-    base_v = mesh.vertices[mesh.faces[base_face_mask(mesh, piece.base)].ravel()]
+    base_v = mesh.vertices[mesh.faces[base_face_mask(mesh, piece.base, piece.parent is None)].ravel()]
     if len(base_v):
         top_base = (base_v @ K.T).max(axis=0)
         offsets = lo[:, None] + s.offset_step * (np.arange(nb - 1) + 1)[None, :]
@@ -240,15 +241,15 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
         best = None
         for g in queue:
             piece = pieces[g]
-            base_area = 0.99 * _base_area(piece.solid, piece.base)
+            base_area = 0.99 * _base_area(piece.solid, piece.base, piece.parent is None)
             for _, plane in rank_cuts(piece, root_direction, s)[: s.exact_candidates]:
                 below, above = split(piece.solid, plane)
                 if len(below.decompose()) != 1 or not above:
                     continue
                 top = union(above)
-                if top.volume() < s.min_part_volume_fraction * total_volume or _base_area(below, piece.base) < base_area:
+                if top.volume() < s.min_part_volume_fraction * total_volume or _base_area(below, piece.base, piece.parent is None) < base_area:
                     continue
-                gain = risk[g] - part_risk(Piece(below, piece.base, None), s.alpha_max) \
+                gain = risk[g] - part_risk(Piece(below, piece.base, piece.parent), s.alpha_max) \
                     - risky_area(to_trimesh(top), plane, s.alpha_max)
                 if gain <= 1e-6:
                     continue

@@ -19,6 +19,9 @@ from curvslice.decompose.parts import Plane
 ALPHA_MAX_DEG = 45.0
 #: Faces within this distance (mm) of the base plane and facing down along it are the base face.
 BASE_TOLERANCE_MM = 1e-2
+#: The root stands on the platform: its faces within this distance (mm, about one layer) of its
+#: lowest point are the contact, whatever their normal (a scanned model rarely has a flat bottom).
+PLATFORM_CONTACT_MM = 0.5
 
 
 def risky_mask(normals: np.ndarray, direction: np.ndarray, alpha_max: float) -> np.ndarray:
@@ -26,21 +29,22 @@ def risky_mask(normals: np.ndarray, direction: np.ndarray, alpha_max: float) -> 
     return normals @ np.asarray(direction, float) + np.sin(alpha_max) < 0
 
 
-def base_face_mask(mesh: trimesh.Trimesh, base: Plane, tol: float = BASE_TOLERANCE_MM) -> np.ndarray:
-    """Faces lying on the base plane with their normal opposite to the build direction."""
+def base_face_mask(mesh: trimesh.Trimesh, base: Plane, platform: bool = False) -> np.ndarray:
+    """Faces lying on the base plane with their normal opposite to the build direction; for the
+    root (``platform``) the faces within :data:`PLATFORM_CONTACT_MM` of it."""
     height = mesh.vertices @ base.normal - base.offset
-    on_plane = np.all(np.abs(height[mesh.faces]) <= tol, axis=1)
-    return on_plane & (mesh.face_normals @ base.normal < -0.999)
+    on_plane = np.all(np.abs(height[mesh.faces]) <= (PLATFORM_CONTACT_MM if platform else BASE_TOLERANCE_MM), axis=1)
+    return on_plane if platform else on_plane & (mesh.face_normals @ base.normal < -0.999)
 
 
-def risky_faces(mesh: trimesh.Trimesh, base: Plane, alpha_max: float) -> np.ndarray:
+def risky_faces(mesh: trimesh.Trimesh, base: Plane, alpha_max: float, platform: bool = False) -> np.ndarray:
     """Risky faces of a part printed along ``base.normal`` from ``base`` (its base face excluded)."""
-    return risky_mask(mesh.face_normals, base.normal, alpha_max) & ~base_face_mask(mesh, base)
+    return risky_mask(mesh.face_normals, base.normal, alpha_max) & ~base_face_mask(mesh, base, platform)
 
 
-def risky_area(mesh: trimesh.Trimesh, base: Plane, alpha_max: float) -> float:
+def risky_area(mesh: trimesh.Trimesh, base: Plane, alpha_max: float, platform: bool = False) -> float:
     """R(M_i) of §2.4.3 in mm²."""
-    return float(mesh.area_faces[risky_faces(mesh, base, alpha_max)].sum())
+    return float(mesh.area_faces[risky_faces(mesh, base, alpha_max, platform)].sum())
 
 
 def lowest_plane(vertices: np.ndarray, direction: np.ndarray) -> Plane:
