@@ -10,7 +10,8 @@ decomposition can be replayed exactly on the full-resolution model (:func:`repla
   parent's base plane, is no riskier than the two apart.
 - Fine decomposition (Eq. 2.2): the riskiest part is clipped by the plane out of 100 normals on
   its upper hemisphere × offsets every 5 mm that removes most risky area and keeps Constraints I
-  and II; when it has no such plane the next of the ``top_k`` riskiest is tried. Repeated until
+  and II (the first ``valid_candidates`` valid planes of the ranking are compared by their exact
+  gain); when it has no such plane the next of the ``top_k`` riskiest is tried. Repeated until
   every part's risky area is within tolerance (or ``max_parts``). Candidate
   planes are ranked on area-weighted surface samples (all offsets of a normal at once by
   cumulative sums); the best few are then cut exactly and checked.
@@ -71,6 +72,8 @@ class Settings:
     min_part_volume_fraction: float = 0.005  # no sliver parts (not stated)
     samples: int = 6000  # surface samples ranking the Eq. 2.2 candidates
     exact_candidates: int = 24  # best-ranked planes cut exactly per part
+    offsets_per_normal: int = 3  # of the ranked candidates
+    valid_candidates: int = 4  # valid planes compared by their exact gain
     max_parts: int = 16
     seed: int = 0
 
@@ -222,10 +225,12 @@ def rank_cuts(piece: Piece, root_direction: np.ndarray, s: Settings) -> list[tup
         top_base = (base_v @ K.T).max(axis=0)
         offsets = lo[:, None] + s.offset_step * (np.arange(nb - 1) + 1)[None, :]
         gain = np.where(offsets > top_base[:, None], gain, -np.inf)
-    best_l = gain.argmax(axis=1)  # one offset per normal keeps the candidates diverse
-    best = gain[np.arange(len(K)), best_l]
-    return [(float(best[k]), Plane(K[k], float(lo[k] + s.offset_step * (best_l[k] + 1))))
-            for k in np.argsort(-best) if best[k] > 0]
+    # a few offsets per normal keep the candidates diverse (neighbouring planes fail together)
+    top_l = np.argsort(-gain, axis=1)[:, :s.offsets_per_normal]
+    top = np.take_along_axis(gain, top_l, axis=1)
+    out = [(float(top[k, m]), Plane(K[k], float(lo[k] + s.offset_step * (top_l[k, m] + 1))))
+           for k in range(len(K)) for m in range(top_l.shape[1]) if top[k, m] > 0]
+    return sorted(out, key=lambda c: -c[0])
 
 
 def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction: np.ndarray, total_volume: float,
@@ -242,6 +247,7 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
         for g in queue:
             piece = pieces[g]
             base_area = 0.99 * _base_area(piece.solid, piece.base, piece.parent is None)
+            valid = 0
             for _, plane in rank_cuts(piece, root_direction, s)[: s.exact_candidates]:
                 below, above = split(piece.solid, plane)
                 if len(below.decompose()) != 1 or not above:
@@ -257,8 +263,11 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                 if any(sections_intersect(plane, section, q.base, q.section) for i, q in pieces.items() if i != g) \
                         or sections_intersect(plane, section, piece.base, piece.section):
                     continue
-                best = (gain, g, plane, below, top, above, section)
-                break  # candidates come best first
+                if best is None or gain > best[0]:
+                    best = (gain, g, plane, below, top, above, section)
+                valid += 1
+                if valid == s.valid_candidates:
+                    break
             if best is not None:
                 break  # the riskiest part that can be improved is refined first
         if best is None:

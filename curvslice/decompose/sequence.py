@@ -17,7 +17,7 @@ import numpy as np
 
 from curvslice.decompose.constraints import faces_up
 from curvslice.decompose.parts import Plane
-from curvslice.decompose.risky import risky_mask
+from curvslice.decompose.risky import PLATFORM_CONTACT_MM, risky_mask
 from curvslice.decompose.shape_analysis import CoarseDecomposition
 
 
@@ -60,28 +60,36 @@ def bfs_tree(root: int, edges: list[tuple[int, int]]) -> tuple[list[int], dict[i
 
 
 def plan_sequence(coarse: CoarseDecomposition, alpha_max: float, root: int | None = None,
-                  directions: int = 400) -> Sequence:
+                  directions: int = 400, tie: float = 0.005, min_contact: float = 0.5) -> Sequence:
     """Phase II for one root, or the best root when ``root`` is None.
 
     For a root r and a candidate root direction d (``directions`` nearly uniform on the sphere),
     the separating planes facing down along d are not cut (Constraint II); every patch is then
     printed along the plane normal of its nearest cut ancestor edge, or d in the root's region,
     and (r, d) minimizing the total facing-down area of all patches is kept (faces on the
-    platform, within 0.5 mm of the lowest point along d, excluded).
+    platform, within 0.5 mm of the lowest point along d, excluded); among the choices within
+    ``tie`` × the model's area of that minimum, the one with the largest platform contact.
+    When the model has a flat face (≥ 1 % of its area) to stand on, only directions whose platform
+    contact is at least ``min_contact`` × the largest are considered: Eq. 2.1 alone would let a flat bottom pass by tilting it just under α_max, leaving
+    the model standing on an edge (not in the thesis, which picks the root by hand).
     """
     mesh, labels = coarse.mesh, coarse.labels
     normals, area = mesh.face_normals, mesh.area_faces
-    cand = fibonacci_sphere(directions)
+    # candidates: nearly uniform, plus the axes and the directions that stand a large flat face on
+    # the platform (a uniform set misses a flat bottom by a few degrees)
+    big = np.argsort(-area)[:50]
+    cand = np.vstack([fibonacci_sphere(directions), np.eye(3), -np.eye(3), -normals[big]])
     n_patches = len(coarse.areas)
     onehot = np.eye(n_patches)[labels]  # (F, P)
     low = (mesh.vertices @ cand.T).min(axis=0)
-    above = (mesh.vertices[mesh.faces] @ cand.T).max(axis=1) > low + 0.5  # (F, D)
+    above = (mesh.vertices[mesh.faces] @ cand.T).max(axis=1) > low + PLATFORM_CONTACT_MM  # (F, D)
     down_d = onehot.T @ (area[:, None] * ((normals @ cand.T + np.sin(alpha_max) < 0) & above))  # (P, D)
     edges = list(coarse.planes)
     plane_n = np.array([coarse.planes[e].normal for e in edges])  # oriented low -> high patch index
     down_e = onehot.T @ (area[:, None] * (normals @ plane_n.T + np.sin(alpha_max) < 0))  # (P, E)
     down_e_rev = onehot.T @ (area[:, None] * (-normals @ plane_n.T + np.sin(alpha_max) < 0))
-    best: Sequence | None = None
+    contact = area @ ~above  # (D,) platform contact area along each direction
+    options = []
     for r in (range(n_patches) if root is None else [root]):
         order, parent = bfs_tree(r, edges)
         edge_of = {j: edges.index((min(i, j), max(i, j))) for j, i in parent.items()}
@@ -100,15 +108,24 @@ def plan_sequence(coarse: CoarseDecomposition, alpha_max: float, root: int | Non
                 val = (down_e if sign[s_] > 0 else down_e_rev)[j, e]
                 along = np.where(source[j] == s_, val, along)
             total = total + along
-        k = int(np.argmin(total))
-        d = cand[k]
-        if best is None or total[k] < best.score - 1e-9:
+        options.append((r, order, parent, edge_of, sign, up, row, total))
+    flat = contact.max() >= 0.01 * area.sum()  # the model has a flat face to stand on
+    stands = contact >= min_contact * contact.max() if flat else np.ones(len(cand), bool)
+    least = min(float(o[-1][stands].min()) for o in options)
+    best_key, best = None, None
+    for r, order, parent, edge_of, sign, up, row, total in options:
+        ok = stands & (total <= least + tie * area.sum())
+        if not ok.any():
+            continue
+        k = int(np.flatnonzero(ok)[np.argmax(contact[ok])])
+        key = (float(contact[k]), -float(total[k]))
+        if best_key is None or key > best_key:
             planes = {}
             for j in order[1:]:
                 if up[row[j], k]:
                     p = coarse.planes[edges[edge_of[j]]]
                     planes[j] = p if sign[j] > 0 else Plane(-p.normal, -p.offset)
-            best = Sequence(r, order, parent, planes, d, float(total[k]))
+            best_key, best = key, Sequence(r, order, parent, planes, cand[k], float(total[k]))
     assert best is not None
     assert all(faces_up(p.normal, best.root_direction) for p in best.planes.values())
     return best

@@ -1,0 +1,94 @@
+"""RoboFDM decomposition (thesis ch. 2) and nozzle placement (§2.3.1)."""
+
+from __future__ import annotations
+
+import manifold3d as m3
+import numpy as np
+import pytest
+
+from curvslice.decompose import decompose
+from curvslice.decompose.constraints import constraint_one, faces_up, sections_intersect
+from curvslice.decompose.parts import Plane, cross_section, to_trimesh
+from curvslice.decompose.placement import box_counts, brute_force_counts, platform_frames
+from curvslice.decompose.risky import risky_area, risky_faces
+
+
+def y_solid() -> m3.Manifold:
+    """A Y: a 12 mm-radius stem on the platform with two 4 mm arms leaning 50° off vertical."""
+    stem = m3.Manifold.cylinder(44, 12, 12, 48)
+    arm = m3.Manifold.cylinder(40, 4, 4, 32)
+    return (stem + arm.rotate((0, 50, 0)).translate((0, 0, 40))
+            + arm.rotate((0, -50, 0)).translate((0, 0, 40))).refine_to_length(2.0)
+
+
+def test_risky_area_of_a_box_matches_eq_2_1():
+    box = to_trimesh(m3.Manifold.cube((20, 10, 5)))
+    up = np.array([0.0, 0.0, 1.0])
+    assert risky_area(box, Plane(up, 0.0), np.radians(45)) == pytest.approx(0.0)  # bottom is the base
+    assert risky_area(box, Plane(up, -1.0), np.radians(45)) == pytest.approx(200.0)  # bottom hangs
+    # tilted 40° about y the bottom hangs (n·d = -cos 40° < -sin 45°); at 50° it is self-supported
+    # but the 10 x 5 mm side facing -x hangs (n·d = -sin 50°)
+    for tilt, expected in ((40, 200.0), (50, 50.0)):
+        d = np.array([np.sin(np.radians(tilt)), 0.0, np.cos(np.radians(tilt))])
+        faces = risky_faces(box, Plane(d, -100.0), np.radians(45))
+        assert box.area_faces[faces].sum() == pytest.approx(expected)
+
+
+def test_y_solid_decomposes_into_a_standing_stem_and_separate_arms():
+    solid = y_solid()
+    mesh = to_trimesh(solid)
+    dec = decompose(mesh)
+    parts = dec.parts
+    # the parts partition the model
+    assert sum(p.mesh.volume for p in parts) == pytest.approx(solid.volume(), rel=1e-3)
+    assert not dec.constraint_one_violations() and not dec.constraint_two_violations()
+    # the stem stands on its flat bottom, and each arm tip is printed in a part of its own direction
+    assert np.degrees(np.arccos(dec.root_direction[2])) < 5.0
+    assert parts[0].mesh.bounds[0][2] == pytest.approx(0.0, abs=1e-3)
+    tips = [np.array([s * 28.0, 0.0, 64.0]) for s in (-1, 1)]
+    owner = [min(range(len(parts)), key=lambda i: parts[i].mesh.nearest.on_surface([t])[1][0]) for t in tips]
+    assert 0 not in owner
+    # most of the overhang under the arms (printed along +z) is gone
+    before = risky_area(mesh, Plane(np.array([0.0, 0.0, 1.0]), 0.0), dec.alpha_max, platform=True)
+    after = sum(p.risky_area for p in parts)
+    assert after < 0.3 * before
+
+
+def test_constraint_one_detects_crossing_base_sections():
+    """Fig. 2.6: two base planes through one block whose sections cross on the planes' common line."""
+    block = m3.Manifold.cube((20, 20, 20))
+    a = Plane(np.array([1.0, 0.0, 0.0]), 10.0)
+    b = Plane(np.array([0.0, 0.0, 1.0]), 10.0)
+    ra, rb = cross_section(block, a), cross_section(block, b)
+    assert ra.area == pytest.approx(400.0, rel=1e-3)
+    assert sections_intersect(a, ra, b, rb)
+    assert constraint_one([a, b], [ra, rb]) == [(0, 1)]
+    # an L (slab along x, wall along z): the slab's end section at x = 12 and the wall's top
+    # section at z = 14 are both crossed by the planes' common line, but neither where the other is
+    ell = m3.Manifold.cube((20, 20, 8)) + m3.Manifold.cube((8, 20, 20))
+    pa, pb = Plane(a.normal, 12.0), Plane(b.normal, 14.0)
+    assert not sections_intersect(pa, cross_section(ell, pa), pb, cross_section(ell, pb))
+    pa = Plane(a.normal, 4.0)  # through the wall instead: the two sections now cross
+    assert sections_intersect(pa, cross_section(ell, pa), pb, cross_section(ell, pb))
+    # parallel, distinct planes never meet; the same plane overlaps itself
+    assert not sections_intersect(b, cross_section(block, b), Plane(b.normal, 15.0), cross_section(block, Plane(b.normal, 15.0)))
+    assert sections_intersect(b, cross_section(block, b), b, cross_section(block, b))
+    assert faces_up(b.normal, np.array([0.0, 0.0, 1.0])) and not faces_up(-b.normal, np.array([0.0, 0.0, 1.0]))
+
+
+@pytest.mark.parametrize("robot_name", ["ur3", "ur5"])
+def test_grid_search_optimum_equals_brute_force(robot_name):
+    from curvslice.kinematics import load_robot
+    from curvslice.workcell import load_workcell
+
+    cell = load_workcell(robot_name)
+    pts = platform_frames(load_robot(robot_name), cell, 20_000, seed=1)
+    assert len(pts) > 5_000
+    reach = box_counts(pts, box=100.0, cell=50.0)
+    idx = np.indices(reach.counts.shape).reshape(3, -1).T
+    centres = reach.origin + reach.cell * idx
+    brute = brute_force_counts(pts, centres, 100.0)
+    np.testing.assert_array_equal(brute, reach.counts.ravel())
+    centre, count = reach.best
+    assert count == brute.max()
+    np.testing.assert_allclose(centre, centres[np.argmax(brute)])
