@@ -82,13 +82,33 @@ def test_grid_search_optimum_equals_brute_force(robot_name):
     from curvslice.workcell import load_workcell
 
     cell = load_workcell(robot_name)
-    pts = platform_frames(load_robot(robot_name), cell, 20_000, seed=1)
-    assert len(pts) > 5_000
-    reach = box_counts(pts, box=100.0, cell=50.0)
+    pts = platform_frames(load_robot(robot_name), cell, 10_000, seed=1)
+    assert len(pts) > 3_000  # about half the frames face up
+    reach = box_counts(pts, box=200.0, cell=100.0)
     idx = np.indices(reach.counts.shape).reshape(3, -1).T
     centres = reach.origin + reach.cell * idx
-    brute = brute_force_counts(pts, centres, 100.0)
+    brute = brute_force_counts(pts, centres, 200.0)
     np.testing.assert_array_equal(brute, reach.counts.ravel())
     centre, count = reach.best
     assert count == brute.max()
     np.testing.assert_allclose(centre, centres[np.argmax(brute)])
+
+
+def test_verify_flags_crossing_base_sections(tmp_path):
+    """A hand-made folder whose two base faces cross (Fig. 2.6) fails `curvslice verify`'s Constraint I."""
+    import json
+
+    from curvslice.verify.decompose import checks
+
+    boxes = [((0, 0, 0), (10, 20, 10)), ((10, 0, 0), (10, 20, 20)), ((0, 0, 10), (20, 20, 10))]
+    planes = [((0, 0, 1), 0.0), ((1, 0, 0), 10.0), ((0, 0, 1), 10.0)]
+    parts = []
+    for k, ((x, y, z), size) in enumerate(boxes):
+        to_trimesh(m3.Manifold.cube(size).translate((x, y, z))).export(tmp_path / f"part_{k:02d}.stl")
+        parts.append({"file": f"part_{k:02d}.stl", "base_plane": {"normal": list(planes[k][0]), "offset_mm": planes[k][1]},
+                      "risky_area_mm2": 0.0})
+    (tmp_path / "parts.json").write_text(json.dumps({"alpha_max_deg": 45.0, "root_direction": [0, 0, 1], "parts": parts}))
+    result = {c.name: c for c in checks(tmp_path)}
+    assert not result["Constraint I (base sections apart)"].passed
+    assert result["Constraint I (base sections apart)"].value == "1 pairs"
+    assert result["Constraint II (base planes face up)"].passed is False  # x = 10 is vertical: n·d_root = 0

@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     solid, _ = load_solid(args.model)
     dec = decompose(solid, args.alpha_max, args.root, args.analysis_tolerance, Settings(max_parts=args.max_parts))
     with atomic_folder(args.out, force=args.force, protect=(args.model,)) as tmp:
-        report = write_decomposition(dec, tmp, str(args.model))
+        report = write_decomposition(dec, tmp, str(args.model), solid)
     print(f"{report['parts']} parts in {report['timings_s']['total']:.1f} s; risky area per part (mm²): "
           + ", ".join(f"{a:.1f}" for a in report["risky_area_mm2"]))
     print(f"Constraint I violations: {report['constraint_one_violations'] or 'none'}; "

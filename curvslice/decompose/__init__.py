@@ -118,10 +118,11 @@ def _print_order(root: int, parent: dict[int, int | None]) -> list[int]:
     return order
 
 
-def write_decomposition(dec: Decomposition, folder: Path, source: str) -> dict:
-    """``part_XX.stl`` per part, ``parts.json`` (planes, directions, sequence, poses, risky areas) and
-    ``report.json``; returns the report."""
+def write_decomposition(dec: Decomposition, folder: Path, source: str, model: trimesh.Trimesh) -> dict:
+    """``part_XX.stl`` per part, ``parts.json`` (planes, directions, sequence, poses, risky areas),
+    the placed input ``solid.stl`` (for ``curvslice verify``) and ``report.json``; returns the report."""
     folder = Path(folder)
+    model.export(folder / "solid.stl")
     root_frame = plane_frame(dec.root_direction, dec.parts[0].base_centre)
     parts = []
     for seq_no, p in enumerate(dec.parts):

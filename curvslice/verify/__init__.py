@@ -15,6 +15,8 @@ from curvslice.errors import CurvsliceError
 
 #: Stage checker modules of ``curvslice.verify``, in pipeline order.
 STAGES = ("field", "layers", "toolpaths", "robot")
+#: Checker of a `curvslice decompose` folder (RoboFDM, ch. 2).
+STAGES += ("decompose",)
 
 
 @dataclass(frozen=True)
