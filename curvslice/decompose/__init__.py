@@ -19,7 +19,8 @@ import shapely
 import trimesh
 
 from curvslice.decompose.constraints import constraint_one, faces_up
-from curvslice.decompose.fine_tuning import Settings, coarse_parts, fine_decomposition, merge_regions, replay
+from curvslice.decompose.fine_tuning import (Settings, coarse_parts, fine_decomposition, merge_regions, part_risk,
+                                              replay)
 from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_frame, to_manifold, to_trimesh
 from curvslice.decompose.risky import PLATFORM_CONTACT_MM, lowest_plane, risky_area
 from curvslice.decompose.sequence import plan_sequence
@@ -37,6 +38,7 @@ class Part:
     section: shapely.MultiPolygon
     risky_area: float  # mm², Eq. 2.1 beyond the base plane
     base_centre: np.ndarray
+    risky_area_analysis: float = 0.0  # the same on the analysis copy the search ran on
 
 
 @dataclass
@@ -94,7 +96,8 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         root = i == seq.root
         sec = cross_section(sol, base, PLATFORM_CONTACT_MM if root else 1e-3)
         centre = base.frame() @ np.r_[np.asarray(sec.centroid.coords[0]) if not sec.is_empty else np.zeros(2), 0, 1]
-        parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max, root), centre[:3]))
+        parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max, root), centre[:3],
+                          part_risk(pieces[i], s.alpha_max)))
     t["replay"] = time.perf_counter()
     order = _print_order(seq.root, {p.index: p.parent for p in parts})
     parts.sort(key=lambda p: order.index(p.index))
@@ -139,6 +142,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
             "base_section_area_mm2": float(p.section.area),
             "volume_mm3": float(p.mesh.volume),
             "risky_area_mm2": p.risky_area,
+            "risky_area_analysis_mm2": p.risky_area_analysis,
             "T_P_E": part_pose(p.base, p.base_centre, root_frame).tolist(),
         })
     one, two = dec.constraint_one_violations(), dec.constraint_two_violations()
@@ -152,6 +156,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "gaussians": dec.k,
         "analysis_faces": dec.analysis_faces,
         "risky_area_mm2": [q["risky_area_mm2"] for q in parts],
+        "risky_area_analysis_mm2": [q["risky_area_analysis_mm2"] for q in parts],
         "constraint_one_violations": [list(v) for v in one],
         "constraint_two_violations": two,
         "volume_model_mm3": dec.model_volume,

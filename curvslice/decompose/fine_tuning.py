@@ -71,7 +71,7 @@ class Settings:
     risky_tolerance: float = 1.0  # mm²: a part is safe below this (not stated in the thesis)
     min_part_volume_fraction: float = 0.005  # no sliver parts (not stated)
     samples: int = 6000  # surface samples ranking the Eq. 2.2 candidates
-    exact_candidates: int = 24  # best-ranked planes cut exactly per part
+    exact_candidates: int = 64  # best-ranked planes cut exactly per part
     offsets_per_normal: int = 3  # of the ranked candidates
     valid_candidates: int = 4  # valid planes compared by their exact gain
     max_parts: int = 16
