@@ -22,6 +22,7 @@ from curvslice.decompose.constraints import constraint_one, faces_up
 from curvslice.decompose.fine_tuning import (Settings, coarse_parts, fine_decomposition, merge_regions, part_risk,
                                               replay)
 from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_frame, to_manifold, to_trimesh
+from curvslice.decompose.preview import plot_parts
 from curvslice.decompose.risky import PLATFORM_CONTACT_MM, lowest_plane, risky_area
 from curvslice.decompose.sequence import plan_sequence
 from curvslice.decompose.shape_analysis import coarse_decomposition
@@ -123,7 +124,8 @@ def _print_order(root: int, parent: dict[int, int | None]) -> list[int]:
 
 def write_decomposition(dec: Decomposition, folder: Path, source: str, model: trimesh.Trimesh) -> dict:
     """``part_XX.stl`` per part, ``parts.json`` (planes, directions, sequence, poses, risky areas),
-    the placed input ``solid.stl`` (for ``curvslice verify``) and ``report.json``; returns the report."""
+    the placed input ``solid.stl`` (for ``curvslice verify``), ``parts.png`` and ``report.json``;
+    returns the report."""
     folder = Path(folder)
     model.export(folder / "solid.stl")
     root_frame = plane_frame(dec.root_direction, dec.parts[0].base_centre)
@@ -166,4 +168,5 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
     (folder / "parts.json").write_text(json.dumps({"root_direction": dec.root_direction.tolist(),
                                                    "alpha_max_deg": report["alpha_max_deg"], "parts": parts}, indent=1))
     (folder / "report.json").write_text(json.dumps(report, indent=1))
+    plot_parts(dec.parts, folder / "parts.png", f"{Path(source).stem}: {len(parts)} parts, sequence 0..{len(parts) - 1}")
     return report
