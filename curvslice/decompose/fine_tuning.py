@@ -28,7 +28,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from curvslice.decompose.constraints import faces_up, sections_intersect
-from curvslice.decompose.parts import Plane, cross_section, plane_frame, split, to_trimesh, union
+from curvslice.decompose.parts import Plane, centroid, cross_section, plane_frame, split, to_trimesh, union
 from curvslice.decompose.risky import PLATFORM_CONTACT_MM, base_face_mask, lowest_plane, risky_area, risky_mask
 from curvslice.decompose.sequence import Sequence, fibonacci_sphere
 from curvslice.decompose.shape_analysis import CoarseDecomposition
@@ -80,10 +80,6 @@ class Settings:
 
 def part_risk(piece: Piece, alpha_max: float) -> float:
     return risky_area(to_trimesh(piece.solid), piece.base, alpha_max, platform=piece.parent is None)
-
-
-def _section(solid: manifold3d.Manifold, plane: Plane) -> shapely.MultiPolygon:
-    return cross_section(solid, plane)
 
 
 def _subtree(seq: Sequence, j: int) -> set[int]:
@@ -156,21 +152,17 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
             continue  # the plane does not separate this patch: it stays in its holder
         _, plane, kept, left, keep, rest = best
         pieces[holder].solid = left
-        pieces[j] = Piece(kept, plane, holder, _section(kept, plane))
+        pieces[j] = Piece(kept, plane, holder, cross_section(kept, plane))
         for p in sub:
             owner[p] = j
-        cuts.append(Cut(holder, j, plane, np.array([_centre(c) for c in keep]),
-                        np.array([_centre(c) for c in rest]).reshape(-1, 3)))
+        cuts.append(Cut(holder, j, plane, np.array([centroid(c) for c in keep]),
+                        np.array([centroid(c) for c in rest]).reshape(-1, 3)))
     return pieces, cuts
 
 
 def _base_area(solid: manifold3d.Manifold, base: Plane, platform: bool) -> float:
     mesh = to_trimesh(solid)
     return float(mesh.area_faces[base_face_mask(mesh, base, platform)].sum())
-
-
-def _centre(solid: manifold3d.Manifold) -> np.ndarray:
-    return np.asarray(solid.to_mesh().vert_properties)[:, :3].mean(axis=0)
 
 
 def merge_regions(pieces: dict[int, Piece], cuts: list[Cut], order: list[int], s: Settings) -> list[Cut]:
@@ -259,7 +251,7 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                     - risky_area(to_trimesh(top), plane, s.alpha_max)
                 if gain <= 1e-6:
                     continue
-                section = _section(top, plane)
+                section = cross_section(top, plane)
                 if any(sections_intersect(plane, section, q.base, q.section) for i, q in pieces.items() if i != g) \
                         or sections_intersect(plane, section, piece.base, piece.section):
                     continue
@@ -281,7 +273,7 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                     q.parent = new
         pieces[g].solid = below
         pieces[new] = Piece(top, plane, g, section)
-        cuts.append(Cut(g, new, plane, np.array([_centre(c) for c in above]), np.zeros((0, 3))))
+        cuts.append(Cut(g, new, plane, np.array([centroid(c) for c in above]), np.zeros((0, 3))))
     return cuts
 
 
@@ -293,7 +285,7 @@ def replay(solid: manifold3d.Manifold, root: int, cuts: list[Cut]) -> dict[int, 
         refs = np.vstack([c.keep, c.rest])
         keep, rest = [], [below]
         for comp in above:
-            nearest = int(np.argmin(np.linalg.norm(refs - _centre(comp), axis=1)))
+            nearest = int(np.argmin(np.linalg.norm(refs - centroid(comp), axis=1)))
             (keep if nearest < len(c.keep) else rest).append(comp)
         if not keep:
             raise ValueError(f"replaying cut {c.holder}->{c.new}: no piece above the plane matches the analysis")

@@ -17,7 +17,7 @@ import numpy as np
 
 from curvslice.decompose.constraints import faces_up
 from curvslice.decompose.parts import Plane
-from curvslice.decompose.risky import PLATFORM_CONTACT_MM, risky_mask
+from curvslice.decompose.risky import PLATFORM_CONTACT_MM
 from curvslice.decompose.shape_analysis import CoarseDecomposition
 
 
