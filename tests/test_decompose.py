@@ -122,3 +122,38 @@ def test_verify_flags_crossing_base_sections(tmp_path):
     assert not result["Constraint I (base sections apart)"].passed
     assert result["Constraint I (base sections apart)"].value == "1 pairs"
     assert result["Constraint II (base planes face up)"].passed is False  # x = 10 is vertical: n·d_root = 0
+
+
+def test_cli_decompose_then_verify(tmp_path):
+    """`curvslice decompose` writes the folder contract and `curvslice verify` re-checks it."""
+    import json
+
+    from curvslice.cli import main
+
+    model = tmp_path / "y.stl"
+    to_trimesh(y_solid()).export(model)
+    out = tmp_path / "y_parts"
+    assert main(["decompose", str(model), "--out", str(out)]) == 0
+    spec = json.loads((out / "parts.json").read_text())
+    assert [p["sequence"] for p in spec["parts"]] == list(range(len(spec["parts"])))
+    assert all((out / p["file"]).exists() for p in spec["parts"])
+    assert spec["parts"][0]["parent"] is None and all(p["parent"] < p["sequence"] for p in spec["parts"][1:])
+    for p in spec["parts"]:  # T_P^E is a rigid transform whose z axis is the build direction in E
+        T = np.asarray(p["T_P_E"])
+        np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
+    assert (out / "parts.png").exists() and (out / "report.json").exists()
+    assert main(["verify", str(out)]) == 0
+
+
+def test_cli_workcell_place_writes_a_loadable_workcell(tmp_path):
+    from curvslice.cli import main
+    from curvslice.workcell import load_workcell
+
+    out = tmp_path / "ur3.json"
+    assert main(["workcell", "place", "--robot", "ur3", "--samples", "20000", "--box", "100", "--grid", "20",
+                 "--out", str(out)]) == 0
+    cell = load_workcell(out)
+    assert cell.robot == "ur3" and out.with_suffix(".png").exists()
+    report = __import__("json").loads(out.with_suffix(".report.json").read_text())
+    np.testing.assert_allclose(cell.nozzle[:3, 3], report["nozzle_mm"], atol=1e-6)
+    assert report["frames_in_box"] > 0
