@@ -23,6 +23,8 @@ from curvslice.errors import CurvsliceError
 
 #: Stage checker modules of ``curvslice.verify``, in pipeline order.
 STAGES = ("field", "layers", "toolpaths", "robot")
+#: Checker of a `curvslice decompose` folder (RoboFDM, ch. 2).
+STAGES += ("decompose",)
 
 #: The files each stage writes (``layers/`` stands for ``layers/layer_0001.ply`` … up to the count in
 #: report.json); the robot stage also writes its controller programs (see :func:`_programs`).
