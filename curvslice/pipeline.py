@@ -73,7 +73,7 @@ class Settings:
     platform_thickness: float = setting(DEFAULT_THICKNESS, "disc thickness", "field", "mm", lo=0.1, hi=1000.0)
     # volume decomposition (§3.4)
     voxel: float = setting(1.0, "voxel width w (the thesis used about the nozzle diameter)", "field", "mm",
-                           lo=0.01, hi=100.0)
+                           lo=0.001, hi=100.0)  # below ~0.3 mm the memory limit decides, naming the GiB
     method: str = setting("pg-sp-gcfa", "growing-field method: gcfa (Alg. 1), sp-gcfa (Alg. 3), pg-sp-gcfa (Alg. 5)",
                           "field", choices=METHODS)
     delta_f: int = setting(1, "Δf, the peeling-field threshold step of Alg. 5", "field", lo=1, hi=1000)
