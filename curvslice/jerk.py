@@ -61,6 +61,8 @@ class JerkSettings:
     max_step: float = 0.3  # rad, largest change of one θ in one Gauss-Newton step (stays on the IK branch)
     scaling_rounds: int = 80  # rounds of local time-scaling at most
     scale_spread: float = 1.15  # neighbouring steps' stretch factors differ by at most this ratio
+    max_tilt_deg: float = 5.0  # the global filter may tilt a tool axis this far (0 = θ only; within the workcell's bound)
+    tilt_weight: float = 1.0  # μ: pull of a tilt (rad²) back to the planned axis, against J (rad²/s⁶)
     fd_step: float = 1e-5  # rad, central difference of q(θ) for dq/dθ
     weights: tuple[float, ...] | None = None  # diagonal of W (Eq. 4.2); None = I
 
@@ -137,29 +139,39 @@ def total_squared_jerk(jerk: np.ndarray, weights: np.ndarray | None = None) -> f
 
 @dataclass
 class Redundancy:
-    """Rows parametrized by the rotation θ about the nozzle axis on a fixed IK branch."""
+    """Rows parametrized by z = (θ, α, β): the rotation θ about the nozzle axis (Eq. 4.3) and a tilt
+    (α, β) of the axis t_i towards two fixed perpendicular directions (the bounded axis deviation of
+    the workcell), on each row's fixed IK branch. z = 0 tilt is the row's own axis."""
 
     robot: Robot
     cell: Workcell
     positions: np.ndarray  # (n, 3) waypoint c_i in the model frame
-    frames: np.ndarray  # (n, 3, 3) θ = 0 deposition frame (Eq. 4.3)
+    axes: np.ndarray  # (n, 3) the rows' tool axes t_i
+    basis: np.ndarray  # (n, 2, 3) two unit directions perpendicular to t_i
     branch: np.ndarray  # (n,) IK branch, -1 where none reproduces the row (the row stays fixed)
 
-    def flange(self, theta: np.ndarray, rows: np.ndarray) -> np.ndarray:
-        """T_E^B of ``rows`` turned to ``theta`` (Eq. 2.3 with T_O^P = [R0 Rz(θ), c])."""
-        c, s = np.cos(theta), np.sin(theta)
+    def axis(self, z: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """Unit tool axes of ``rows`` at tilt z[:, 1:] (rows of z without tilt keep t_i)."""
+        n = self.axes[rows].copy()
+        if z.shape[1] > 1:
+            n += np.einsum("ik,ikj->ij", z[:, 1:3], self.basis[rows])
+        return n / np.linalg.norm(n, axis=1, keepdims=True)
+
+    def flange(self, z: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """T_E^B of ``rows`` at z (Eq. 2.3 with T_O^P = [R0(t) Rz(θ), c], Eq. 4.3)."""
+        T = deposition_frames(self.positions[rows], self.axis(z, rows), np.zeros(1))[:, 0]
+        c, s = np.cos(z[:, 0]), np.sin(z[:, 0])
         Rz = np.zeros((len(rows), 3, 3))
         Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
-        T = np.zeros((len(rows), 4, 4))
-        T[:, :3, :3] = self.frames[rows] @ Rz
-        T[:, :3, 3] = self.positions[rows]
-        T[:, 3, 3] = 1.0
+        T[:, :3, :3] = T[:, :3, :3] @ Rz
         return self.cell.nozzle @ rigid_inverse(T) @ rigid_inverse(self.cell.platform_mount)
 
-    def joints(self, theta: np.ndarray, rows: np.ndarray, near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """q (k, 6) on each row's branch at ``theta``, unwound to the turn nearest ``near``, and
-        whether that branch exists there."""
-        q, ok = ik(self.robot, self.flange(theta, rows))
+    def joints(self, z: np.ndarray, rows: np.ndarray, near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """q (k, 6) on each row's branch at z ((k,) θ only, or (k, 3) θ and tilt), unwound to the
+        turn nearest ``near``, and whether that branch exists there."""
+        z = np.asarray(z, float)
+        z = z[:, None] if z.ndim == 1 else z
+        q, ok = ik(self.robot, self.flange(z, rows))
         k = np.arange(len(rows))
         b = self.branch[rows]
         q = q[k, b]
@@ -172,12 +184,14 @@ def redundancy(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.
     """θ_i and IK branch of each row q_i (the inverse of Eq. 2.3 and 4.3): returns the
     parametrization and θ (n,). Rows no branch reproduces within ``tol`` rad get branch -1."""
     positions = np.asarray(positions, float)
-    frames = deposition_frames(positions, normals, np.zeros(1))[:, 0, :3, :3]
+    axes = np.asarray(normals, float) / np.linalg.norm(normals, axis=1, keepdims=True)
+    frames = deposition_frames(positions, axes, np.zeros(1))[:, 0, :3, :3]
     T_OP = rigid_inverse(fk(robot, q) @ cell.platform_mount) @ cell.nozzle
     M = np.swapaxes(frames, 1, 2) @ T_OP[:, :3, :3]  # = Rz(θ)
     theta = np.arctan2(M[:, 1, 0], M[:, 0, 0])
-    red = Redundancy(robot, cell, positions, frames, np.zeros(len(q), int))
-    cand, ok = ik(robot, red.flange(theta, np.arange(len(q))))
+    basis = np.swapaxes(frames[:, :, :2], 1, 2)  # x and y of the θ = 0 frame: perpendicular to t_i
+    red = Redundancy(robot, cell, positions, axes, basis, np.zeros(len(q), int))
+    cand, ok = ik(robot, red.flange(theta[:, None], np.arange(len(q))))
     gap = np.abs((cand - q[:, None] + np.pi) % (2 * np.pi) - np.pi).max(axis=2)
     gap[~ok] = np.inf
     red.branch = np.where(gap.min(axis=1) <= tol, gap.argmin(axis=1), -1)
@@ -261,64 +275,90 @@ def _segment_sums(values: np.ndarray, segment: np.ndarray) -> np.ndarray:
     return np.bincount(inv, weights=values)
 
 
-def global_filter(red: Redundancy, theta: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray,
-                  limits: Limits, settings: JerkSettings) -> tuple[np.ndarray, np.ndarray, int]:
-    """Eq. 4.12 with the window = every segment, by damped Gauss-Newton over all θ at once.
+def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray,
+                  limits: Limits, settings: JerkSettings, tilt_bound: np.ndarray | None = None,
+                  ) -> tuple[np.ndarray, np.ndarray, int]:
+    """Eq. 4.12 with the window = every segment, by projected, damped Gauss-Newton over all rows'
+    z = (θ) or (θ, α, β) at once.
 
-    Residuals: √W q⃛ (Eq. 4.2) and √ρ × the excess over the joint limits, ξ and a_max. The normal
-    equations are banded (a row's stencil spans 5 rows) and solved as one sparse system for the
-    whole print; a step is kept in a segment only where it lowers that segment's cost, else that
-    segment's damping grows. Rows of branch -1 stay fixed. Returns θ, q and the steps taken."""
-    n = len(q)
+    Residuals: √W q⃛ (Eq. 4.2), √ρ × the excess over the joint limits, ξ and a_max, and √μ × the
+    tilt (a small pull back to the planned axis). The normal equations are banded (a row's stencil
+    spans 5 rows) and solved as one sparse system for the whole print; the tilt of row i is projected
+    onto the disc of radius ``tilt_bound[i]`` (rad); a step is kept in a segment only where it lowers
+    that segment's cost, else that segment's damping grows. Rows of branch -1 stay fixed. Returns
+    z, q and the steps taken."""
+    z = np.asarray(z, float)
+    z = (z[:, None] if z.ndim == 1 else z).copy()
+    n, k = z.shape
     prob = _Problem(t, segment, limits, settings)
-    free = red.branch >= 0
-    cols = np.flatnonzero(free)
+    cols = np.flatnonzero(red.branch >= 0)
     if len(cols) == 0:
-        return theta, q, 0
+        return z, q, 0
+    bound = np.zeros(n) if tilt_bound is None else np.asarray(tilt_bound, float)
+    mu = settings.tilt_weight
+
+    def row_cost(qq: np.ndarray, zz: np.ndarray) -> np.ndarray:
+        c = prob.cost_by_row(qq)
+        return c + mu * (zz[:, 1:] ** 2).sum(axis=1) if k > 1 else c
+
     _, seg_of = np.unique(segment, return_inverse=True)
     lam = np.full(seg_of.max() + 1, 1e-3)
-    cost = _segment_sums(prob.cost_by_row(q), segment)
+    cost = _segment_sums(row_cost(q, z), segment)
+    var = (cols[:, None] * k + np.arange(k)).ravel()
     steps = 0
     for _ in range(settings.global_iterations):
         eps = settings.fd_step
-        qp, okp = red.joints(theta[cols] + eps, cols, q[cols])
-        qm, okm = red.joints(theta[cols] - eps, cols, q[cols])
-        G = np.zeros((n, 6))
-        G[cols] = (qp - qm) / (2 * eps)
-        G[cols[~(okp & okm)]] = 0.0
-        JTJ = sp.csr_matrix((n, n))
-        JTr = np.zeros(n)
+        G = np.zeros((n, 6, k))
+        for v in range(k):
+            e = np.zeros(k)
+            e[v] = eps
+            qp, okp = red.joints(z[cols] + e, cols, q[cols])
+            qm, okm = red.joints(z[cols] - e, cols, q[cols])
+            G[cols, :, v] = np.where((okp & okm)[:, None], (qp - qm) / (2 * eps), 0.0)
+        JTJ = sp.csr_matrix((n * k, n * k))
+        JTr = np.zeros(n * k)
         for op, r, scale in prob.residual_parts(q):
             for j in range(6):
                 active = r[:, j] != 0
                 if op is not prob.D3 and not active.any():
                     continue
-                if op is None:
-                    d = scale[j] * G[:, j] * active
-                    JTJ = JTJ + sp.diags(d * d)
-                    JTr += d * scale[j] * r[:, j]
-                    continue
-                A = op if op is prob.D3 else sp.diags(active.astype(float)) @ op
-                Jj = A.multiply(scale[j] * G[:, j][None, :]).tocsr()
+                if op is None:  # joint limits: one row each
+                    rr = np.repeat(np.arange(n), k)
+                    vals = (scale[j] * G[:, j, :] * active[:, None]).ravel()
+                    Jj = sp.csr_matrix((vals, (rr, np.arange(n * k))), shape=(n, n * k))
+                else:
+                    A = (op if op is prob.D3 else sp.diags(active.astype(float)) @ op).tocoo()
+                    rr = np.repeat(A.row, k)
+                    cc = (A.col[:, None] * k + np.arange(k)).ravel()
+                    vals = (A.data[:, None] * scale[j] * G[A.col, j, :]).ravel()
+                    Jj = sp.csr_matrix((vals, (rr, cc)), shape=(A.shape[0], n * k))
                 JTJ = JTJ + Jj.T @ Jj
                 JTr += Jj.T @ (scale[j] * r[:, j])
-        H = JTJ.tocsr()[cols][:, cols]
+        if k > 1:
+            tilt = np.zeros((n, k))
+            tilt[:, 1:] = mu
+            JTJ = JTJ + sp.diags(tilt.ravel())
+            JTr += (tilt * z).ravel()
+        H = JTJ.tocsr()[var][:, var]
         diag = H.diagonal()
-        damp = lam[seg_of[cols]]
+        damp = np.repeat(lam[seg_of[cols]], k)
         A = H + sp.diags(damp * (diag + 1e-9 * diag.max() + 1e-12))
-        delta = -spsolve(A.tocsc(), JTr[cols])
+        delta = -spsolve(A.tocsc(), JTr[var]).reshape(-1, k)
         delta = np.clip(np.nan_to_num(delta), -settings.max_step, settings.max_step)
-        new_theta = theta.copy()
-        new_theta[cols] += delta
+        new_z = z.copy()
+        new_z[cols] += delta
+        if k > 1:  # projection onto the allowed tilt
+            r = np.linalg.norm(new_z[:, 1:], axis=1)
+            new_z[:, 1:] *= np.minimum(1.0, bound / np.maximum(r, 1e-300))[:, None]
         new_q = q.copy()
-        qn, ok = red.joints(new_theta[cols], cols, q[cols])
+        qn, ok = red.joints(new_z[cols], cols, q[cols])
         new_q[cols] = qn
         bad_seg = np.zeros(len(lam), bool)
         bad_seg[seg_of[cols[~ok]]] = True
-        new_cost = _segment_sums(prob.cost_by_row(new_q), segment)
+        new_cost = _segment_sums(row_cost(new_q, new_z), segment)
         better = (new_cost < cost) & ~bad_seg
         keep = better[seg_of]
-        theta = np.where(keep, new_theta, theta)
+        z = np.where(keep[:, None], new_z, z)
         q = np.where(keep[:, None], new_q, q)
         improved = np.where(better, (cost - new_cost) / np.maximum(cost, 1e-300), 0.0)
         cost = np.where(better, new_cost, cost)
@@ -328,16 +368,17 @@ def global_filter(red: Redundancy, theta: np.ndarray, q: np.ndarray, t: np.ndarr
             break
         if better.any() and improved.max() < 1e-6 and lam.min() <= 1e-6:
             break
-    return theta, q, steps
+    return z, q, steps
 
 
-def local_filter(red: Redundancy, theta: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray,
+def local_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray,
                  limits: Limits, settings: JerkSettings, history: list | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Algorithm 6 on every segment: windows of Eq. 4.12 around the free row of largest ‖q⃛‖_W while
     some |q⃛| > j_max, solved by SLSQP over θ with hard joint limits, ξ and a_max (never worse than
-    the window already is); d = 5, +5 to d_max; locking/unlocking. ``history`` (optional) collects
-    the max |q⃛| per joint after every iteration (Fig. 4.3). Returns θ, q and the iterations."""
-    theta, q = theta.copy(), q.copy()
+    the window already is); d = 5, +5 to d_max; locking/unlocking. Only θ = z[:, 0] varies; tilts
+    stay. ``history`` (optional) collects the max |q⃛| per joint after every iteration (Fig. 4.3).
+    Returns z, q and the iterations."""
+    z, q = z.copy(), q.copy()
     D1, D2, D3 = derivative_operators(t, segment)
     w = np.ones(6) if settings.weights is None else np.asarray(settings.weights, float)
     first, last = segment_bounds(segment)
@@ -360,7 +401,7 @@ def local_filter(red: Redundancy, theta: np.ndarray, q: np.ndarray, t: np.ndarra
             success = False
             while not success and d <= settings.max_window:
                 a, b = max(a0, c - d), min(b0, c + d)
-                success = _solve_window(red, theta, q, D1, D2, D3, dt, segment, a, b, first[c], last[c],
+                success = _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, first[c], last[c],
                                         limits, settings, w, ~locked)
                 if not success:
                     d += settings.window_step
@@ -372,10 +413,10 @@ def local_filter(red: Redundancy, theta: np.ndarray, q: np.ndarray, t: np.ndarra
             iterations += 1
             if history is not None:
                 history.append(np.abs(jerk).max(axis=0))
-    return theta, q, iterations
+    return z, q, iterations
 
 
-def _solve_window(red, theta, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_last, limits, settings, w,
+def _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_last, limits, settings, w,
                   movable) -> bool:
     """J_local over θ_a..θ_b (rows a-2..b+2) by SLSQP; updates θ and q in place when it lowers J_local
     and meets the constraints. Rows of branch -1 stay fixed."""
@@ -404,7 +445,7 @@ def _solve_window(red, theta, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_l
         key = x.tobytes()
         if key not in cache:
             eps = settings.fd_step
-            th = np.r_[x, x + eps, x - eps]
+            th = np.c_[np.r_[x, x + eps, x - eps], np.tile(z[var, 1:], (3, 1))]
             rows3 = np.r_[var, var, var]
             qq, ok = red.joints(th, rows3, np.tile(q[var], (3, 1)))
             k = len(var)
@@ -439,7 +480,7 @@ def _solve_window(red, theta, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_l
         parts = [-dacc, dacc, -dvel, dvel, dq, -dq]
         return np.concatenate([p.reshape(-1, k) for p in parts])
 
-    x0 = theta[var].copy()
+    x0 = z[var, 0].copy()
     before = objective(x0)[0]
     try:
         res = minimize(objective, x0, jac=True, method="SLSQP",
@@ -452,7 +493,7 @@ def _solve_window(red, theta, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_l
     after = objective(res.x)[0]
     if not ok or not after < before * (1 - 1e-6) or (constraints(res.x) < -1e-9).any():
         return False
-    theta[var] = res.x
+    z[var, 0] = res.x
     q[ctx] = Q
     return True
 
@@ -581,15 +622,18 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     w = None if settings.weights is None else np.asarray(settings.weights, float)
     before = motion_stats(q0, t0, seg, w)
     red, theta0 = redundancy(robot, cell, positions, motion.normals, q0)
+    tilt = min(np.radians(settings.max_tilt_deg), cell.max_axis_deviation)
+    z0 = np.c_[theta0, np.zeros((len(q0), 2))] if tilt > 0 else theta0[:, None]
+    bound = np.where(motion.deviation > 0, 0.0, tilt)  # rows already deviated keep their axis
     fixed = red.branch < 0
-    theta, q = theta0.copy(), q0.copy()
+    z, q = z0.copy(), q0.copy()
     steps = iterations = 0
     checks = reverted = 0
     for _ in range(3):
         red.branch = np.where(fixed, -1, red.branch)
-        theta, q = np.where(fixed, theta0, theta), np.where(fixed[:, None], q0, q)
-        theta, q, s = global_filter(red, theta, q, t0, seg, limits, settings)
-        theta, q, it = local_filter(red, theta, q, t0, seg, limits, settings, history)
+        z, q = np.where(fixed[:, None], z0, z), np.where(fixed[:, None], q0, q)
+        z, q, s = global_filter(red, z, q, t0, seg, limits, settings, bound)
+        z, q, it = local_filter(red, z, q, t0, seg, limits, settings, history)
         steps += s
         iterations += it
         moved = np.flatnonzero(np.abs(q - q0).max(axis=1) > 1e-12)
@@ -606,11 +650,13 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
             break
         reverted += int(hit.sum())
         fixed |= hit
+    normals = red.axis(z, np.arange(len(q)))
+    tilted = np.arccos(np.clip(np.einsum("ij,ij->i", normals, red.axes), -1.0, 1.0))
     filtered = time.perf_counter() - start
     t_scaled, rounds, left = time_scale(q, t0, seg, limits, settings)
     scaled_added = float((t_scaled[-1] - t_scaled[0]) - (t0[-1] - t0[0])) if len(t0) else 0.0
     t_new, moves = retime_moves(q, t_scaled, seg, limits, cell.min_step_time)
-    out = replace(motion, q=q, t=t_new)
+    out = replace(motion, q=q, t=t_new, normals=normals, deviation=np.where(tilted > 1e-6, motion.deviation + tilted, motion.deviation))
     after = motion_stats(q, t_new, seg, w)
     inside = np.r_[seg[1:] == seg[:-1]] if len(seg) > 1 else np.zeros(0, bool)
     print_steps = float(np.diff(t0)[inside].sum()) if len(inside) else 0.0
@@ -628,6 +674,8 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
         "collision_checks": checks,
         "rows_reverted_for_collision": reverted,
         "rows_fixed": int((red.branch < 0).sum()),
+        "rows_tilted": int((tilted > 1e-6).sum()),
+        "max_tilt_deg": round(float(np.degrees(tilted.max())), 3) if len(tilted) else 0.0,
         "seconds_filter": round(filtered, 3),
         "seconds": round(time.perf_counter() - start, 3),
         "limits": {"speed": limits.speed, "acceleration": limits.acceleration.tolist(), "jerk": limits.jerk.tolist()},
