@@ -53,17 +53,22 @@ class JerkSettings:
     window: int = 5  # d, the margin of a local path (§4.3.2)
     window_step: int = 5  # d grows by this when the local filter fails (Alg. 6 line 12)
     max_window: int = 20  # d_max (§4.3.2)
-    max_iterations: int = 100  # Alg. 6 windows per segment (the thesis: 100 per path)
-    global_iterations: int = 40  # Gauss-Newton steps of the whole-segment filter (0 = Alg. 6 only)
+    # Alg. 6 windows per segment. The thesis uses 100 per path; after the global filter below, on
+    # the kitten's first 10 layers, each window cost 0.1-2 s of SLSQP and all of them together
+    # lowered J by < 0.01 %, so the default skips them; 100 runs the thesis's Algorithm 6.
+    max_iterations: int = 0
+    global_iterations: int = 20  # Gauss-Newton steps of the whole-segment filter (0 = Alg. 6 only)
     penalty: float = 1e4  # weight of the squared excesses over the joint limits and ξ in the global filter
     acceleration_penalty: float = 1e4  # ... over a_max (lowers what the time-scaling must add)
     limit_margin: float = 0.97  # the filters aim at this fraction of ξ and a_max, the time-scaling of a_max, j_max
     max_step: float = 0.3  # rad, largest change of one θ in one Gauss-Newton step (stays on the IK branch)
+    collision_rounds: int = 3  # filter, fcl-check the moved rows, fix colliding ones at their graph pose, repeat
+    sqp_iterations: int = 5  # SQP steps per local problem of Alg. 6
     scaling_rounds: int = 80  # rounds of local time-scaling at most
     scale_spread: float = 1.15  # neighbouring steps' stretch factors differ by at most this ratio
     max_tilt_deg: float = 5.0  # the global filter may tilt a tool axis this far (0 = θ only; within the workcell's bound)
     tilt_weight: float = 1.0  # μ: pull of a tilt (rad²) back to the planned axis, against J (rad²/s⁶)
-    fd_step: float = 1e-5  # rad, central difference of q(θ) for dq/dθ
+    fd_step: float = 1e-6  # rad, finite-difference step of q(z) for dq/dz
     weights: tuple[float, ...] | None = None  # diagonal of W (Eq. 4.2); None = I
 
 
@@ -166,12 +171,13 @@ class Redundancy:
         T[:, :3, :3] = T[:, :3, :3] @ Rz
         return self.cell.nozzle @ rigid_inverse(T) @ rigid_inverse(self.cell.platform_mount)
 
-    def joints(self, z: np.ndarray, rows: np.ndarray, near: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def joints(self, z: np.ndarray, rows: np.ndarray, near: np.ndarray, check: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """q (k, 6) on each row's branch at z ((k,) θ only, or (k, 3) θ and tilt), unwound to the
-        turn nearest ``near``, and whether that branch exists there."""
+        turn nearest ``near``, and whether that branch exists there (``check``: and reproduces the
+        pose by FK, see :func:`curvslice.kinematics.ik`)."""
         z = np.asarray(z, float)
         z = z[:, None] if z.ndim == 1 else z
-        q, ok = ik(self.robot, self.flange(z, rows))
+        q, ok = ik(self.robot, self.flange(z, rows), check=check)
         k = np.arange(len(rows))
         b = self.branch[rows]
         q = q[k, b]
@@ -307,14 +313,13 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
     var = (cols[:, None] * k + np.arange(k)).ravel()
     steps = 0
     for _ in range(settings.global_iterations):
-        eps = settings.fd_step
+        eps = settings.fd_step  # forward differences: dq/dz only steers the step, q(z) is exact
         G = np.zeros((n, 6, k))
         for v in range(k):
             e = np.zeros(k)
             e[v] = eps
-            qp, okp = red.joints(z[cols] + e, cols, q[cols])
-            qm, okm = red.joints(z[cols] - e, cols, q[cols])
-            G[cols, :, v] = np.where((okp & okm)[:, None], (qp - qm) / (2 * eps), 0.0)
+            qp, okp = red.joints(z[cols] + e, cols, q[cols], check=False)
+            G[cols, :, v] = np.where(okp[:, None], (qp - q[cols]) / eps, 0.0)
         JTJ = sp.csr_matrix((n * k, n * k))
         JTr = np.zeros(n * k)
         for op, r, scale in prob.residual_parts(q):
@@ -418,8 +423,11 @@ def local_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, s
 
 def _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_last, limits, settings, w,
                   movable) -> bool:
-    """J_local over θ_a..θ_b (rows a-2..b+2) by SLSQP; updates θ and q in place when it lowers J_local
-    and meets the constraints. Rows of branch -1 stay fixed."""
+    """Eq. 4.12 over θ_a..θ_b (J_local on rows a-2..b+2) by SQP: each step solves the QP of the model
+    q ≈ q(θ) + (dq/dθ) δ with the constraints (joint limits, ξ, a_max never worse than the window
+    already is) by SLSQP, then backtracks on the exact q(θ) (IK), so every kept row satisfies
+    x_i = f(q_i) and the constraints exactly. Updates z and q in place when J_local went down.
+    Rows of branch -1 stay fixed."""
     var = np.arange(a, b + 1)
     var = var[movable[var] & (red.branch[var] >= 0)]
     if len(var) == 0:
@@ -439,61 +447,63 @@ def _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_last,
     base_vel = np.abs(q0[step_rows + 1 - ctx_lo] - q0[step_rows - ctx_lo]) / dt[step_rows, None]
     vel_bound = np.maximum(settings.limit_margin * limits.speed, base_vel)
     sw = np.sqrt(w)
-    cache: dict[bytes, tuple[np.ndarray, np.ndarray, bool]] = {}
+    k = len(var)
+    sel = (var[None, :] == step_rows[:, None] + 1).astype(float) - (var[None, :] == step_rows[:, None])
 
-    def state(x: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
-        key = x.tobytes()
-        if key not in cache:
-            eps = settings.fd_step
-            th = np.c_[np.r_[x, x + eps, x - eps], np.tile(z[var, 1:], (3, 1))]
-            rows3 = np.r_[var, var, var]
-            qq, ok = red.joints(th, rows3, np.tile(q[var], (3, 1)))
-            k = len(var)
-            Q = q0.copy()
-            Q[pos] = qq[:k]
-            G = (qq[k:2 * k] - qq[2 * k:]) / (2 * eps)
-            cache[key] = (Q, G, bool(ok.all()))
-        return cache[key]
+    def exact(x: np.ndarray, check: bool = True) -> tuple[np.ndarray, bool]:
+        qq, ok = red.joints(np.c_[x, z[var, 1:]], var, q[var], check=check)
+        Q = q0.copy()
+        Q[pos] = qq
+        return Q, bool(ok.all())
 
-    def objective(x):
-        Q, G, _ = state(x)
-        J = D3w @ Q * sw
-        grad = ((D3w[:, pos].T @ (J * sw)) * G).sum(axis=1) * 2
-        return float((J**2).sum()), grad
+    def local_cost(Q: np.ndarray) -> float:
+        return float(((D3w @ Q * sw) ** 2).sum())
 
-    def constraints(x):
-        Q, _, _ = state(x)
+    def violations(Q: np.ndarray) -> np.ndarray:
         acc = D2w @ Q
         vel = (Q[step_rows + 1 - ctx_lo] - Q[step_rows - ctx_lo]) / dt[step_rows, None]
-        return np.concatenate([(acc_bound - acc).ravel(), (acc_bound + acc).ravel(),
-                               (vel_bound - vel).ravel(), (vel_bound + vel).ravel(),
+        return np.concatenate([(acc_bound - np.abs(acc)).ravel(), (vel_bound - np.abs(vel)).ravel(),
                                (Q[pos] - limits.lower).ravel(), (limits.upper - Q[pos]).ravel()])
 
-    def constraint_jac(x):
-        Q, G, _ = state(x)
-        k = len(var)
-        dacc = D2w[:, pos][:, None, :] * G.T[None, :, :]  # (rows, 6, k)
-        sel = (var[None, :] == step_rows[:, None] + 1).astype(float) - (var[None, :] == step_rows[:, None])
-        dvel = sel[:, None, :] * G.T[None] / dt[step_rows, None, None]
-        dq = np.zeros((k, 6, k))
-        dq[np.arange(k), :, np.arange(k)] = G
-        parts = [-dacc, dacc, -dvel, dvel, dq, -dq]
-        return np.concatenate([p.reshape(-1, k) for p in parts])
-
-    x0 = z[var, 0].copy()
-    before = objective(x0)[0]
-    try:
-        res = minimize(objective, x0, jac=True, method="SLSQP",
-                       bounds=[(v - np.pi / 2, v + np.pi / 2) for v in x0],
-                       constraints=[{"type": "ineq", "fun": constraints, "jac": constraint_jac}],
-                       options={"maxiter": 50, "ftol": 1e-10 * max(before, 1e-12)})
-    except (ValueError, np.linalg.LinAlgError):
+    x = z[var, 0].copy()
+    Q = q0
+    before = cost = local_cost(Q)
+    for _ in range(settings.sqp_iterations):
+        Qp, okp = exact(x + settings.fd_step, check=False)
+        G = np.where(okp, (Qp[pos] - Q[pos]) / settings.fd_step, 0.0)  # (k, 6) dq/dθ of the window's rows
+        # the QP of this SQP step: J_local and the constraints on the model Q + G δ
+        A3 = D3w[:, pos][:, None, :] * G.T[None] * sw[None, :, None]  # (rows, 6, k)
+        A2 = D2w[:, pos][:, None, :] * G.T[None]
+        AV = sel[:, None, :] * G.T[None] / dt[step_rows, None, None]
+        j0, a0 = D3w @ Q * sw, D2w @ Q
+        v0 = (Q[step_rows + 1 - ctx_lo] - Q[step_rows - ctx_lo]) / dt[step_rows, None]
+        M3, M2, MV = A3.reshape(-1, k), A2.reshape(-1, k), AV.reshape(-1, k)
+        MQ = np.zeros((k, 6, k))
+        MQ[np.arange(k), :, np.arange(k)] = G
+        MQ = MQ.reshape(-1, k)
+        r3 = j0.ravel()
+        cons_A = np.vstack([-M2, M2, -MV, MV, MQ, -MQ])
+        cons_b = np.concatenate([(acc_bound - a0).ravel(), (acc_bound + a0).ravel(), (vel_bound - v0).ravel(),
+                                 (vel_bound + v0).ravel(), (Q[pos] - limits.lower).ravel(), (limits.upper - Q[pos]).ravel()])
+        near = cons_b < np.abs(cons_A).sum(axis=1) * settings.max_step  # only these can become active
+        cons_A, cons_b = cons_A[near], cons_b[near]
+        res = minimize(lambda d: (float(((r3 + M3 @ d) ** 2).sum()), 2 * M3.T @ (r3 + M3 @ d)), np.zeros(k),
+                       jac=True, method="SLSQP", bounds=[(-settings.max_step, settings.max_step)] * k,
+                       constraints=[{"type": "ineq", "fun": lambda d: cons_b + cons_A @ d, "jac": lambda d: cons_A}],
+                       options={"maxiter": 100, "ftol": 1e-12 * max(cost, 1e-12)})
+        step = res.x
+        for _ in range(4):  # backtracking on the exact q(θ)
+            Qn, ok = exact(x + step)
+            cn = local_cost(Qn)
+            if ok and cn < cost and (violations(Qn) >= -1e-9).all():
+                break
+            step = step / 2
+        else:
+            break
+        x, Q, cost = x + step, Qn, cn
+    if not cost < before * (1 - 1e-6):
         return False
-    Q, _, ok = state(res.x)
-    after = objective(res.x)[0]
-    if not ok or not after < before * (1 - 1e-6) or (constraints(res.x) < -1e-9).any():
-        return False
-    z[var, 0] = res.x
+    z[var, 0] = x
     q[ctx] = Q
     return True
 
@@ -504,8 +514,8 @@ def _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_last,
 
 def time_scale(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits,
                settings: JerkSettings) -> tuple[np.ndarray, int, int]:
-    """Local time-scaling: lengthen the steps of the stencil of every row with |q̈| > a_max or
-    |q⃛| > j_max by the factor that brings it under (acceleration ∝ 1/s², jerk ∝ 1/s³), spread to
+    """Local time-scaling: lengthen every step faster than ξ (‖Δq‖∞/Δt, Eq. 4.4) and the steps of the
+    stencil of every row with |q̈| > a_max or |q⃛| > j_max by the factor that brings it under (acceleration ∝ 1/s², jerk ∝ 1/s³), spread to
     neighbouring steps by at most ``scale_spread`` per step so the stretch itself stays smooth;
     repeated until every row meets the limits. The path and each step's E are unchanged (lower feed).
 
@@ -529,7 +539,9 @@ def time_scale(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits
         jerk = np.einsum("nk,nkj->nj", w[:, 2], q[np.minimum(start[:, None] + np.arange(5), n - 1)])
         over_a = np.abs(acc) / limits.acceleration
         over_j = np.abs(jerk) / limits.jerk
-        if (over_a <= 1.0 + 1e-9).all() and (over_j <= 1.0 + 1e-9).all():
+        speed = np.abs(np.diff(q, axis=0)).max(axis=1) / np.diff(t) / limits.speed
+        over_v = np.where(inside, speed, 0.0)
+        if (over_a <= 1.0 + 1e-9).all() and (over_j <= 1.0 + 1e-9).all() and (over_v <= 1.0 + 1e-9).all():
             return t, rounds - 1, 0
         f = np.maximum(np.sqrt(over_a.max(axis=1) / margin), np.cbrt(over_j.max(axis=1) / margin))
         f = np.maximum(f, 1.0)
@@ -538,6 +550,7 @@ def time_scale(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits
         for k in range(4):
             s = np.minimum(start + k, n - 2)
             np.maximum.at(step_f, s, np.where(inside[s], f, 1.0))
+        step_f = np.maximum(step_f, np.where(over_v > 1.0, over_v / margin, 1.0))  # ξ (Eq. 4.4)
         # spread the stretch: log f decays by c per step, never across a segment boundary
         lf = np.log(step_f)
         fwd = np.maximum.accumulate(lf + c * idx + big * seg_rank) - c * idx - big * seg_rank
@@ -552,6 +565,8 @@ def time_scale(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits
     acc = np.einsum("nk,nkj->nj", w[:, 1], win)
     jerk = np.einsum("nk,nkj->nj", w[:, 2], win)
     left = int(((np.abs(acc) > limits.acceleration * (1 + 1e-9)) | (np.abs(jerk) > limits.jerk * (1 + 1e-9))).any(axis=1).sum())
+    speed = np.abs(np.diff(q, axis=0)).max(axis=1) / np.diff(t)
+    left += int((inside & (speed > limits.speed * (1 + 1e-9))).sum())
     return t, rounds, left
 
 
@@ -629,13 +644,17 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     z, q = z0.copy(), q0.copy()
     steps = iterations = 0
     checks = reverted = 0
-    for _ in range(3):
+    rounds = settings.collision_rounds
+    for k in range(rounds + 1):
         red.branch = np.where(fixed, -1, red.branch)
         z, q = np.where(fixed[:, None], z0, z), np.where(fixed[:, None], q0, q)
-        z, q, s = global_filter(red, z, q, t0, seg, limits, settings, bound)
-        z, q, it = local_filter(red, z, q, t0, seg, limits, settings, history)
-        steps += s
-        iterations += it
+        if k < rounds:
+            # later rounds start from the filtered path: a few steps re-settle the neighbours of fixed rows
+            more = settings if k == 0 else replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
+            z, q, s = global_filter(red, z, q, t0, seg, limits, more, bound)
+            z, q, it = local_filter(red, z, q, t0, seg, limits, more, history)
+            steps += s
+            iterations += it
         moved = np.flatnonzero(np.abs(q - q0).max(axis=1) > 1e-12)
         if collides_for_layer is None or layer_of_row is None or len(moved) == 0:
             break
@@ -649,7 +668,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
         if not hit.any():
             break
         reverted += int(hit.sum())
-        fixed |= hit
+        fixed |= hit  # back to the graph's pose, collision-free by construction (§4.3.1)
     normals = red.axis(z, np.arange(len(q)))
     tilted = np.arccos(np.clip(np.einsum("ij,ij->i", normals, red.axes), -1.0, 1.0))
     filtered = time.perf_counter() - start
@@ -687,3 +706,26 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
             report["layers"].append({"layer": int(value), "before": motion_stats(q0[r], t0[r], seg[r], w),
                                      "after": motion_stats(q[r], t_new[r], seg[r], w)})
     return out, report
+
+
+def trajectory_stage(robot: Robot, cell: Workcell, toolpaths: dict[str, np.ndarray], motion, trajectory: str = "jerk",
+                     collides_for_layer: Callable[[int], Callable[[np.ndarray], np.ndarray] | None] | None = None,
+                     settings: JerkSettings = JerkSettings()):
+    """The robot stage's last step: ``trajectory`` = "jerk" returns :func:`optimize_print`'s motion
+    and report; "graph" keeps the graph search's motion (§4.3.1, for comparison) and reports its
+    derivatives (Eq. 4.7-4.10) against the workcell's limits."""
+    layer = np.asarray(toolpaths["layer"])[motion.index]
+    if trajectory == "jerk":
+        return optimize_print(robot, cell, np.asarray(toolpaths["positions"], float)[motion.index], motion,
+                              collides_for_layer, layer, settings)
+    if trajectory != "graph":
+        raise ValueError(f"trajectory must be 'jerk' or 'graph' (got {trajectory!r})")
+    w = None if settings.weights is None else np.asarray(settings.weights, float)
+    limits = Limits.of(robot, cell)
+    return motion, {
+        "trajectory": "graph",
+        "before": motion_stats(motion.q, motion.t, motion.segment, w),
+        "limits": {"speed": limits.speed, "acceleration": limits.acceleration.tolist(), "jerk": limits.jerk.tolist()},
+        "layers": [{"layer": int(v), "before": motion_stats(motion.q[layer == v], motion.t[layer == v],
+                                                            motion.segment[layer == v], w)} for v in np.unique(layer)],
+    }

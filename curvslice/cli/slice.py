@@ -24,6 +24,7 @@ from curvslice.convex_front import GROW_EPS, PEEL_EPS
 from curvslice.errors import CurvsliceError
 from curvslice.exporters.joints_csv import write_robot_outputs
 from curvslice.growing_field import METHODS, growing_field
+from curvslice.jerk import trajectory_stage
 from curvslice.kinematics import ROBOT_NAMES, load_robot
 from curvslice.motion import motion_summary, plan_print
 from curvslice.outdir import atomic_folder
@@ -171,8 +172,10 @@ def stage_robot(ctx: Context) -> None:
     with ctx.timed("robot"), ctx.bar(f"robot motion ({cell.name})", n, unit="waypoint") as bar:
         motion = plan_print(robot, cell, toolpaths, lambda layer: scene.for_layer(layers, layer),
                             cost=a.motion_cost, max_rotations=a.max_rotations, progress=bar.update)
+        motion, jerk = trajectory_stage(robot, cell, toolpaths, motion, a.trajectory,
+                                        lambda layer: scene.for_layer(layers, layer))
         write_robot_outputs(ctx.out, cell, robot.family, toolpaths, motion)
-    ctx.report["robot"] = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n)}
+    ctx.report["robot"] = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n), "jerk": jerk}
     if not a.quiet:
         r = ctx.report["robot"]
         print(f"robot: {r['rows']}/{n} waypoints, {r['segments']} motions ({r['splits']} splits), "
@@ -246,6 +249,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g.add_argument("--rotations", type=int, help="p, rotations about the nozzle axis per waypoint (default: the workcell's, 30)")
     g.add_argument("--max-rotations", type=int, help="largest p when doubling to remove splits (default: 4 p)")
     g.add_argument("--motion-cost", default="l1", choices=("l1", "quadratic"), help="edge weight: Eq. 3.4 or Eq. 4.5")
+    g.add_argument("--trajectory", default="jerk", choices=("jerk", "graph"),
+                   help="jerk: the graph path jerk-optimized (§4.3.2) within the workcell's acceleration and jerk "
+                   "limits, moves between segments by Ruckig; graph: the graph search's path as it is (§4.3.1)")
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
     p.add_argument("--preview", action="store_true", help="also write preview.png (layers by print order, cut-away; tool-paths of one layer)")
     p.add_argument("--preview-layer", type=int, help="layer whose tool-paths preview.png shows (default: the middle one)")
