@@ -411,7 +411,7 @@ def local_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, s
                 if not success:
                     d += settings.window_step
             a, b = max(a0, c - min(d, settings.max_window)), min(b0, c + min(d, settings.max_window))
-            locked[a:b + 1] = ~success | (red.branch[a:b + 1] < 0)
+            locked[a:b + 1] = (not success) | (red.branch[a:b + 1] < 0)
             lo, hi = max(a0, a - 2), min(b0, b + 2)
             jerk[lo:hi + 1] = D3[lo:hi + 1] @ q
             count += 1
@@ -443,9 +443,9 @@ def _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_last,
     pos = var - ctx_lo
     q0 = q[ctx].copy()
     base_acc = np.abs(D2w @ q0)
-    acc_bound = np.maximum(settings.limit_margin * limits.acceleration, base_acc)
+    acc_bound = np.maximum(settings.limit_margin * limits.acceleration, base_acc * (1 + 1e-9) + 1e-12)
     base_vel = np.abs(q0[step_rows + 1 - ctx_lo] - q0[step_rows - ctx_lo]) / dt[step_rows, None]
-    vel_bound = np.maximum(settings.limit_margin * limits.speed, base_vel)
+    vel_bound = np.maximum(settings.limit_margin * limits.speed, base_vel * (1 + 1e-9) + 1e-12)
     sw = np.sqrt(w)
     k = len(var)
     sel = (var[None, :] == step_rows[:, None] + 1).astype(float) - (var[None, :] == step_rows[:, None])
@@ -487,10 +487,11 @@ def _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_last,
                                  (vel_bound + v0).ravel(), (Q[pos] - limits.lower).ravel(), (limits.upper - Q[pos]).ravel()])
         near = cons_b < np.abs(cons_A).sum(axis=1) * settings.max_step  # only these can become active
         cons_A, cons_b = cons_A[near], cons_b[near]
-        res = minimize(lambda d: (float(((r3 + M3 @ d) ** 2).sum()), 2 * M3.T @ (r3 + M3 @ d)), np.zeros(k),
-                       jac=True, method="SLSQP", bounds=[(-settings.max_step, settings.max_step)] * k,
+        unit = 1.0 / max(cost, 1e-300)  # J_local scaled to 1 at δ = 0
+        res = minimize(lambda d: (unit * float(((r3 + M3 @ d) ** 2).sum()), 2 * unit * M3.T @ (r3 + M3 @ d)),
+                       np.zeros(k), jac=True, method="SLSQP", bounds=[(-settings.max_step, settings.max_step)] * k,
                        constraints=[{"type": "ineq", "fun": lambda d: cons_b + cons_A @ d, "jac": lambda d: cons_A}],
-                       options={"maxiter": 100, "ftol": 1e-12 * max(cost, 1e-12)})
+                       options={"maxiter": 100, "ftol": 1e-10})
         step = res.x
         for _ in range(4):  # backtracking on the exact q(θ)
             Qn, ok = exact(x + step)
