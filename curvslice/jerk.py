@@ -62,7 +62,9 @@ class JerkSettings:
     acceleration_penalty: float = 1e4  # ... over a_max (lowers what the time-scaling must add)
     limit_margin: float = 0.97  # the filters aim at this fraction of ξ and a_max, the time-scaling of a_max, j_max
     max_step: float = 0.3  # rad, largest change of one θ in one Gauss-Newton step (stays on the IK branch)
-    collision_rounds: int = 3  # filter, fcl-check the moved rows, fix colliding ones at their graph pose, repeat
+    # filter, fcl-check the moved rows (§4.3.3), fix each colliding row half-way back to its last
+    # collision-free pose (or at it), re-filter the 10 rows around it; repeat
+    collision_rounds: int = 3
     sqp_iterations: int = 5  # SQP steps per local problem of Alg. 6
     scaling_rounds: int = 80  # rounds of local time-scaling at most
     scale_spread: float = 1.15  # neighbouring steps' stretch factors differ by at most this ratio
@@ -641,35 +643,54 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     tilt = min(np.radians(settings.max_tilt_deg), cell.max_axis_deviation)
     z0 = np.c_[theta0, np.zeros((len(q0), 2))] if tilt > 0 else theta0[:, None]
     bound = np.where(motion.deviation > 0, 0.0, tilt)  # rows already deviated keep their axis
-    fixed = red.branch < 0
+    branch = red.branch.copy()
     z, q = z0.copy(), q0.copy()
-    steps = iterations = 0
-    checks = reverted = 0
-    rounds = settings.collision_rounds
-    for k in range(rounds + 1):
-        red.branch = np.where(fixed, -1, red.branch)
-        z, q = np.where(fixed[:, None], z0, z), np.where(fixed[:, None], q0, q)
-        if k < rounds:
-            # later rounds start from the filtered path: a few steps re-settle the neighbours of fixed rows
+    safe_z, safe_q = z0.copy(), q0.copy()  # the last pose of each row known collision-free (the graph's first)
+    free = branch >= 0
+    pinned = np.zeros(len(q), bool)  # rows fixed after a collision
+    steps = iterations = checks = reverted = 0
+    for k in range(settings.collision_rounds + 1):
+        if k < settings.collision_rounds and free.any():
+            # later rounds re-settle only the rows near the ones just fixed, in a few steps
             more = settings if k == 0 else replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
+            red.branch = np.where(free, branch, -1)
             z, q, s = global_filter(red, z, q, t0, seg, limits, more, bound)
             z, q, it = local_filter(red, z, q, t0, seg, limits, more, history)
+            red.branch = branch
             steps += s
             iterations += it
-        moved = np.flatnonzero(np.abs(q - q0).max(axis=1) > 1e-12)
-        if collides_for_layer is None or layer_of_row is None or len(moved) == 0:
+        if collides_for_layer is None or layer_of_row is None:
             break
+        moved = np.flatnonzero(np.abs(q - safe_q).max(axis=1) > 1e-12)
         hit = np.zeros(len(q), bool)
         for value in np.unique(layer_of_row[moved]):
             rows = moved[layer_of_row[moved] == value]
             collides = collides_for_layer(int(value))
-            if collides is not None:
-                hit[rows] = collides(q[rows])
-                checks += len(rows)
+            hit[rows] = collides(q[rows]) if collides is not None else False
+            checks += len(rows)
+        ok = moved[~hit[moved]]
+        safe_z[ok], safe_q[ok] = z[ok], q[ok]
         if not hit.any():
             break
-        reverted += int(hit.sum())
-        fixed |= hit  # back to the graph's pose, collision-free by construction (§4.3.1)
+        bad = np.flatnonzero(hit)
+        reverted += len(bad)
+        if k < settings.collision_rounds:  # half-way back to the safe pose when that is free (one more check)
+            mid_z = (z[bad] + safe_z[bad]) / 2
+            mid_q, good = red.joints(mid_z, bad, q[bad])
+            collides_mid = np.zeros(len(bad), bool)
+            for value in np.unique(layer_of_row[bad]):
+                sel = layer_of_row[bad] == value
+                collides = collides_for_layer(int(value))
+                collides_mid[sel] = collides(mid_q[sel]) if collides is not None else False
+                checks += int(sel.sum())
+            use = good & ~collides_mid
+            safe_z[bad[use]], safe_q[bad[use]] = mid_z[use], mid_q[use]
+        z[bad], q[bad] = safe_z[bad], safe_q[bad]  # fixed from now on
+        near = np.zeros(len(q) + 1, int)
+        np.add.at(near, np.clip(bad - 10, 0, len(q)), 1)
+        np.add.at(near, np.clip(bad + 11, 0, len(q)), -1)
+        pinned[bad] = True
+        free = (np.cumsum(near)[:-1] > 0) & (branch >= 0) & ~pinned
     normals = red.axis(z, np.arange(len(q)))
     tilted = np.arccos(np.clip(np.einsum("ij,ij->i", normals, red.axes), -1.0, 1.0))
     filtered = time.perf_counter() - start
