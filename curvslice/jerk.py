@@ -57,7 +57,7 @@ class JerkSettings:
     # the kitten's first 10 layers, each window cost 0.1-2 s of SLSQP and all of them together
     # lowered J by < 0.01 %, so the default skips them; 100 runs the thesis's Algorithm 6.
     max_iterations: int = 0
-    global_iterations: int = 20  # Gauss-Newton steps of the whole-segment filter (0 = Alg. 6 only)
+    global_iterations: int = 30  # Gauss-Newton steps of the whole-segment filter (0 = Alg. 6 only)
     penalty: float = 1e4  # weight of the squared excesses over the joint limits and ξ in the global filter
     acceleration_penalty: float = 1e4  # ... over a_max (lowers what the time-scaling must add)
     limit_margin: float = 0.97  # the filters aim at this fraction of ξ and a_max, the time-scaling of a_max, j_max
@@ -68,7 +68,7 @@ class JerkSettings:
     sqp_iterations: int = 5  # SQP steps per local problem of Alg. 6
     scaling_rounds: int = 80  # rounds of local time-scaling at most
     scale_spread: float = 1.15  # neighbouring steps' stretch factors differ by at most this ratio
-    max_tilt_deg: float = 5.0  # the global filter may tilt a tool axis this far (0 = θ only; within the workcell's bound)
+    max_tilt_deg: float = 8.0  # the global filter may tilt a tool axis this far (0 = θ only; within the workcell's bound)
     tilt_weight: float = 1.0  # μ: pull of a tilt (rad²) back to the planned axis, against J (rad²/s⁶)
     fd_step: float = 1e-6  # rad, finite-difference step of q(z) for dq/dz
     weights: tuple[float, ...] | None = None  # diagonal of W (Eq. 4.2); None = I
