@@ -285,7 +285,7 @@ def _segment_sums(values: np.ndarray, segment: np.ndarray) -> np.ndarray:
 
 def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray,
                   limits: Limits, settings: JerkSettings, tilt_bound: np.ndarray | None = None,
-                  ) -> tuple[np.ndarray, np.ndarray, int]:
+                  history: list | None = None) -> tuple[np.ndarray, np.ndarray, int]:
     """Eq. 4.12 with the window = every segment, by projected, damped Gauss-Newton over all rows'
     z = (θ) or (θ, α, β) at once.
 
@@ -293,7 +293,8 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
     tilt (a small pull back to the planned axis). The normal equations are banded (a row's stencil
     spans 5 rows) and solved as one sparse system for the whole print; the tilt of row i is projected
     onto the disc of radius ``tilt_bound[i]`` (rad); a step is kept in a segment only where it lowers
-    that segment's cost, else that segment's damping grows. Rows of branch -1 stay fixed. Returns
+    that segment's cost, else that segment's damping grows. Rows of branch -1 stay fixed.
+    ``history`` (optional) collects the max |q⃛| per joint after every step (Fig. 4.3). Returns
     z, q and the steps taken."""
     z = np.asarray(z, float)
     z = (z[:, None] if z.ndim == 1 else z).copy()
@@ -371,6 +372,8 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
         cost = np.where(better, new_cost, cost)
         lam = np.where(better, np.maximum(lam / 3, 1e-7), lam * 4)
         steps += 1
+        if history is not None:
+            history.append(np.abs(prob.D3 @ q).max(axis=0))
         if not better.any() and lam.min() > 1e6:
             break
         if better.any() and improved.max() < 1e-6 and lam.min() <= 1e-6:
@@ -654,7 +657,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
             # later rounds re-settle only the rows near the ones just fixed, in a few steps
             more = settings if k == 0 else replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
             red.branch = np.where(free, branch, -1)
-            z, q, s = global_filter(red, z, q, t0, seg, limits, more, bound)
+            z, q, s = global_filter(red, z, q, t0, seg, limits, more, bound, history)
             z, q, it = local_filter(red, z, q, t0, seg, limits, more, history)
             red.branch = branch
             steps += s
