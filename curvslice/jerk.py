@@ -10,17 +10,21 @@ not the jerk. This module improves it:
    (the inverse Vandermonde matrix of Eq. 4.9). They are assembled into sparse operators D1, D2, D3
    (n × n), so q̇ = D1 q, q̈ = D2 q, q⃛ = D3 q. With a constant step h, D3 is Eq. 4.11.
 2. **The redundancy as the unknown**: every row keeps its IK branch and is parametrized by its
-   rotation θ_i about the nozzle axis, q_i = IK_b(x_i, θ_i) (Eq. 4.3). Every discrete-time
-   constraint x_i = f(q_i) of Eq. 4.2/4.12 then holds by construction, to IK precision, with one
-   unknown per waypoint.
-3. **Global filter** (Eq. 4.12 with the window = the whole segment): damped Gauss-Newton on
-   J = Σ‖q⃛_i‖²_W (Eq. 4.2) plus quadratic penalties on the joint limits, on ξ (‖Δq‖∞/Δt, Eq. 4.4)
-   and on a_max; all segments of a print form one sparse banded system (stencils never cross a
-   segment); a step is kept per segment only where it lowers that segment's cost.
+   rotation θ_i about the nozzle axis, q_i = IK_b(x_i, θ_i) (Eq. 4.3), and by a tilt (α_i, β_i) of
+   its tool axis bounded by ``max_tilt_deg`` (the workcell's bounded axis deviation; the
+   orientations' own zig-zags, which θ cannot absorb, otherwise dominate the slow-downs). Every
+   discrete-time constraint x_i = f(q_i) of Eq. 4.2/4.12 then holds by construction, to IK precision.
+3. **Global filter** (Eq. 4.12 with the window = the whole segment): projected, damped Gauss-Newton
+   on J = Σ‖q⃛_i‖²_W (Eq. 4.2) plus quadratic penalties on the joint limits, on ξ (‖Δq‖∞/Δt,
+   Eq. 4.4) and on a_max; all segments of a print form one sparse banded system (stencils never
+   cross a segment); a step is kept per segment only where it lowers that segment's cost. Then fcl
+   checks every moved row (§4.3.3); a colliding one goes back towards its last collision-free pose
+   and its neighbours are re-filtered.
 4. **Algorithm 6** (§4.3.2): at the free row of largest ‖q⃛‖_W above j_max, the local problem
    Eq. 4.12 over θ_{c-d..c+d} by SQP (scipy's SLSQP) with the joint limits, ξ and a_max as hard
    constraints; d = 5, +5 up to d_max = 20 while it fails; a window that still fails is locked, a
-   success frees it again; at most ``max_iterations`` windows per segment.
+   success frees it again; at most ``max_iterations`` windows per segment (off by default, see
+   :class:`JerkSettings`).
 5. **Limits a controller has** (Eq. 4.2's last line): where the redundancy cannot bring |q̈| ≤ a_max
    and |q⃛| ≤ j_max, the stretch is slowed down (:func:`time_scale`): the steps around the row are
    lengthened (same path, same E per step, lower feed) until every row meets them.
@@ -235,7 +239,7 @@ class _Problem:
     """Eq. 4.12 on a set of rows: jerk residuals and limit penalties as functions of q."""
 
     def __init__(self, t: np.ndarray, segment: np.ndarray, limits: Limits, settings: JerkSettings):
-        self.D1, self.D2, self.D3 = derivative_operators(t, segment)
+        _, self.D2, self.D3 = derivative_operators(t, segment)
         n = len(t)
         same = segment[1:] == segment[:-1]
         dt = np.diff(t)
@@ -245,7 +249,6 @@ class _Problem:
         self.F = sp.csr_matrix((np.r_[-1 / dt[rows], 1 / dt[rows]], (np.r_[m, m], np.r_[rows, rows + 1])),
                                shape=(len(rows), n))
         self.frow = rows
-        self.seg = segment
         self.w = np.ones(6) if settings.weights is None else np.asarray(settings.weights, float)
         self.rho = settings.penalty
         self.rho_a = settings.acceleration_penalty
@@ -389,10 +392,9 @@ def local_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, s
     stay. ``history`` (optional) collects the max |q⃛| per joint after every iteration (Fig. 4.3).
     Returns z, q and the iterations."""
     z, q = z.copy(), q.copy()
-    D1, D2, D3 = derivative_operators(t, segment)
+    _, D2, D3 = derivative_operators(t, segment)
     w = np.ones(6) if settings.weights is None else np.asarray(settings.weights, float)
     first, last = segment_bounds(segment)
-    n = len(q)
     dt = np.diff(t)
     jerk = D3 @ q
     locked = red.branch < 0
@@ -411,7 +413,7 @@ def local_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, s
             success = False
             while not success and d <= settings.max_window:
                 a, b = max(a0, c - d), min(b0, c + d)
-                success = _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, first[c], last[c],
+                success = _solve_window(red, z, q, D2, D3, dt, segment, a, b, first[c], last[c],
                                         limits, settings, w, ~locked)
                 if not success:
                     d += settings.window_step
@@ -426,7 +428,7 @@ def local_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, s
     return z, q, iterations
 
 
-def _solve_window(red, z, q, D1, D2, D3, dt, segment, a, b, seg_first, seg_last, limits, settings, w,
+def _solve_window(red, z, q, D2, D3, dt, segment, a, b, seg_first, seg_last, limits, settings, w,
                   movable) -> bool:
     """Eq. 4.12 over θ_a..θ_b (J_local on rows a-2..b+2) by SQP: each step solves the QP of the model
     q ≈ q(θ) + (dq/dθ) δ with the constraints (joint limits, ξ, a_max never worse than the window
