@@ -46,7 +46,7 @@ import scipy.sparse as sp
 from scipy.optimize import minimize
 from scipy.sparse.linalg import spsolve
 
-from curvslice.kinematics import Robot, fk, ik, rigid_inverse
+from curvslice.kinematics import Robot, fk, ik, joint_placements, rigid_inverse
 from curvslice.workcell import Workcell, deposition_frames
 
 
@@ -74,7 +74,7 @@ class JerkSettings:
     scale_spread: float = 1.15  # neighbouring steps' stretch factors differ by at most this ratio
     max_tilt_deg: float = 8.0  # the global filter may tilt a tool axis this far (0 = θ only; within the workcell's bound)
     tilt_weight: float = 1.0  # μ: pull of a tilt (rad²) back to the planned axis, against J (rad²/s⁶)
-    fd_step: float = 1e-6  # rad, finite-difference step of q(z) for dq/dz
+    fd_step: float = 1e-6  # rad, finite-difference step of the flange pose (and of q(θ) in Alg. 6) for dq/dz
     weights: tuple[float, ...] | None = None  # diagonal of W (Eq. 4.2); None = I
 
 
@@ -189,6 +189,32 @@ class Redundancy:
         q = q[k, b]
         q = near + (q - near + np.pi) % (2 * np.pi) - np.pi
         return q, ok[k, b]
+
+
+def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray, eps: float) -> np.ndarray:
+    """dq/dz (k, 6, m) at the rows' poses q: the flange's spatial twist per unit of each variable
+    (a finite difference of Eq. 2.3 in pose space) mapped through the inverse of the arm's spatial
+    Jacobian (columns [p_j × a_j; a_j] from the joint frames) — no IK needed."""
+    F = joint_placements(red.robot, q)
+    axis = ["XYZ".index(red.robot.model.joints[j].shortname()[-1]) for j in range(1, 7)]
+    a = np.stack([F[:, j + 1, :3, axis[j]] for j in range(6)], axis=2)  # (k, 3, 6)
+    p = F[:, 1:, :3, 3].transpose(0, 2, 1)
+    J = np.concatenate([np.cross(p, a, axis=1), a], axis=1)  # (k, 6, 6) spatial Jacobian
+    T0inv = rigid_inverse(red.flange(z, rows))
+    out = np.zeros((len(rows), 6, z.shape[1]))
+    for v in range(z.shape[1]):
+        e = np.zeros(z.shape[1])
+        e[v] = eps
+        E = red.flange(z + e, rows) @ T0inv  # the flange's motion, base frame
+        R = E[:, :3, :3]
+        w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1) / (2 * eps)
+        twist = np.concatenate([E[:, :3, 3] / eps, w], axis=1)
+        with np.errstate(all="ignore"):
+            try:
+                out[:, :, v] = np.linalg.solve(J, twist[..., None])[..., 0]
+            except np.linalg.LinAlgError:  # an exactly singular row: solve one by one
+                out[:, :, v] = np.array([np.linalg.lstsq(Jk, tk, rcond=1e-12)[0] for Jk, tk in zip(J, twist)])
+    return np.nan_to_num(out)
 
 
 def redundancy(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray,
@@ -319,32 +345,27 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
     var = (cols[:, None] * k + np.arange(k)).ravel()
     steps = 0
     for _ in range(settings.global_iterations):
-        eps = settings.fd_step  # forward differences: dq/dz only steers the step, q(z) is exact
         G = np.zeros((n, 6, k))
-        for v in range(k):
-            e = np.zeros(k)
-            e[v] = eps
-            qp, okp = red.joints(z[cols] + e, cols, q[cols], check=False)
-            G[cols, :, v] = np.where(okp[:, None], (qp - q[cols]) / eps, 0.0)
-        JTJ = sp.csr_matrix((n * k, n * k))
-        JTr = np.zeros(n * k)
+        G[cols] = joint_rates(red, z[cols], cols, q[cols], settings.fd_step)
+        # one sparse Jacobian of every residual (jerk, a_max, ξ, joint limits; per joint) w.r.t. z
+        parts_r, parts_c, parts_v, res = [], [], [], []
+        offset = 0
         for op, r, scale in prob.residual_parts(q):
+            A = sp.identity(n, format="coo") if op is None else op.tocoo()
             for j in range(6):
-                active = r[:, j] != 0
-                if op is not prob.D3 and not active.any():
+                active = np.ones(A.shape[0], bool) if op is prob.D3 else r[:, j] != 0
+                if not active.any():
                     continue
-                if op is None:  # joint limits: one row each
-                    rr = np.repeat(np.arange(n), k)
-                    vals = (scale[j] * G[:, j, :] * active[:, None]).ravel()
-                    Jj = sp.csr_matrix((vals, (rr, np.arange(n * k))), shape=(n, n * k))
-                else:
-                    A = (op if op is prob.D3 else sp.diags(active.astype(float)) @ op).tocoo()
-                    rr = np.repeat(A.row, k)
-                    cc = (A.col[:, None] * k + np.arange(k)).ravel()
-                    vals = (A.data[:, None] * scale[j] * G[A.col, j, :]).ravel()
-                    Jj = sp.csr_matrix((vals, (rr, cc)), shape=(A.shape[0], n * k))
-                JTJ = JTJ + Jj.T @ Jj
-                JTr += Jj.T @ (scale[j] * r[:, j])
+                keep = active[A.row]
+                parts_r.append(offset + np.repeat(A.row[keep], k))
+                parts_c.append((A.col[keep, None] * k + np.arange(k)).ravel())
+                parts_v.append((A.data[keep, None] * scale[j] * G[A.col[keep], j, :]).ravel())
+                res.append(np.where(active, scale[j] * r[:, j], 0.0))
+                offset += A.shape[0]
+        Jz = sp.csr_matrix((np.concatenate(parts_v), (np.concatenate(parts_r), np.concatenate(parts_c))),
+                           shape=(offset, n * k))
+        JTJ = (Jz.T @ Jz).tocsr()
+        JTr = Jz.T @ np.concatenate(res)
         if k > 1:
             tilt = np.zeros((n, k))
             tilt[:, 1:] = mu
