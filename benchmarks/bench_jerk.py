@@ -62,7 +62,8 @@ def main() -> None:
         np.savez(out / "toolpaths.npz", **tp)
         for p in sorted((a.slice / "layers").glob("layer_*.ply"))[: a.layers]:
             shutil.copy(p, out / "layers" / p.name)
-        shutil.copy(a.slice / "field.npz", out / "field.npz")
+        for name in ("field.npz", "solid.stl"):
+            shutil.copy(a.slice / name, out / name)
         write_robot_outputs(out, cell, robot.family, tp, motion)
         pos, axis = waypoints_from_flange(cell, fk_reference(robot, motion.q))
         rep["fk_position_error_mm"] = float(np.linalg.norm(pos - tp["positions"][motion.index], axis=1).max())
