@@ -105,6 +105,9 @@ class Settings:
                                         lo=1, hi=2880)
     motion_cost: str = setting("l1", "edge weight: Eq. 3.4 (l1) or Eq. 4.5 (quadratic)", "robot",
                                choices=("l1", "quadratic"))
+    trajectory: str = setting("jerk", "jerk: the graph path jerk-optimized (§4.3.2) within the workcell's acceleration "
+                              "and jerk limits, moves between segments by Ruckig; graph: the graph search's path as it "
+                              "is (§4.3.1, for comparison)", "robot", choices=("jerk", "graph"))
 
     def __post_init__(self) -> None:
         """Every number finite and in its range (unit named), choices and cross-field limits: checked when
@@ -335,6 +338,7 @@ def run_robot(ctx: Context) -> RobotResult:
     Skipped (``motion`` None) when no robot is set."""
     from curvslice.collision import CollisionScene  # pinocchio / fcl only when a robot is planned
     from curvslice.kinematics import load_robot
+    from curvslice.jerk import trajectory_stage
     from curvslice.motion import motion_summary, plan_print
     from curvslice.workcell import load_workcell
 
@@ -358,8 +362,13 @@ def run_robot(ctx: Context) -> RobotResult:
         raise CurvsliceError(f"the workcell {cell.name} reaches none of the {n} waypoints with a collision-free pose: "
                              "move the part within the arm's reach (workcell JSON: platform/nozzle pose) or pick "
                              "another robot")
-    report = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n),
-              "timings_s": {"robot": round(time.perf_counter() - start, 3)}}
+    graph_s = time.perf_counter() - start
+    motion, jerk = trajectory_stage(robot, cell, toolpaths, motion, s.trajectory,
+                                    lambda layer: scene.for_layer(layers, layer))
+    seconds = time.perf_counter() - start
+    report = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n), "jerk": jerk,
+              "timings_s": {"robot": round(seconds, 3), "robot_graph": round(graph_s, 3),
+                            "robot_trajectory": round(seconds - graph_s, 3)}}
     if not ctx.quiet:
         print(f"robot: {report['rows']}/{n} waypoints, {report['segments']} motions ({report['splits']} splits), "
               f"{report['skipped']} skipped, {report['deviated']} with the axis tilted "

@@ -13,6 +13,7 @@ from curvslice.collision import CollisionScene
 from curvslice.errors import CurvsliceError
 from curvslice.exporters.joints_csv import read_joints_csv, write_robot_outputs
 from curvslice.kinematics import ROBOT_NAMES, load_robot
+from curvslice.jerk import trajectory_stage
 from curvslice.motion import plan_print
 from curvslice.verify import robot as verify_robot
 from curvslice.workcell import (
@@ -143,6 +144,7 @@ def test_robot_stage_files_pass_the_verifier(name, tmp_path):
     scene = CollisionScene(robot, cell)
     layers = [trimesh.load(p) for p in sorted((tmp_path / "layers").glob("*.ply"))]
     motion = plan_print(robot, cell, tp, lambda layer: scene.for_layer(layers, layer))
+    motion, _ = trajectory_stage(robot, cell, tp, motion, "jerk", lambda layer: scene.for_layer(layers, layer))
     write_robot_outputs(tmp_path, cell, robot.family, tp, motion)
     results = verify_robot.checks(tmp_path)
     failed = [c for c in results if not c.passed]
