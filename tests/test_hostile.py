@@ -323,7 +323,7 @@ def test_joining_a_silent_meshcat_port_times_out():
 @pytest.fixture(scope="module")
 def robot_slice(tmp_path_factory):
     out = tmp_path_factory.mktemp("hostile") / "tee"
-    assert cli.main(["slice", str(MODELS / "tee.stl"), "--voxel", "3", "--out", str(out), "--stages", "robot",
+    assert cli.main(["slice", str(MODELS / "tee.stl"), "--voxel", "3", "--out", str(out), "--stages", "robot", "--no-verify",
                      "--robot", "ur5", "--quiet"]) == 0
     return out
 

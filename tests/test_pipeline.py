@@ -71,7 +71,7 @@ def test_resume_reuses_unchanged_stages_and_matches_a_fresh_run(tmp_path: Path) 
     assert r.returncode == 0, r.stderr
     rep = _report(resumed)
     assert rep["reused"] == ["field", "layers", "toolpaths"] and rep["stages"][-1] == "robot"
-    assert set(rep["timings_s"]) == {"robot", "total"}
+    assert set(rep["timings_s"]) == {"robot", "robot_graph", "robot_trajectory", "total"}
     assert _cli("slice", str(TEE), "--voxel", "2", "--robot", "ur5", "--quiet", "--out", str(fresh)).returncode == 0
     for name in ("field.npz", "toolpaths.npz"):
         a, b = _arrays(fresh / name), _arrays(resumed / name)

@@ -80,7 +80,10 @@ def main(argv: list[str] | None = None) -> int:
     except ImportError as exc:  # a command module's third-party import
         print(f"curvslice: error: {missing_package(exc)}", file=sys.stderr)
         return 2
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except SystemExit as exc:  # a bad option (one line already printed) or --help: the exit code, not a raise
+        return int(exc.code or 0)
     try:
         with _signals_interrupt():
             return int(args.run(args) or 0)

@@ -182,6 +182,8 @@ def verify_outdir(outdir: str | Path) -> list[Check]:
             continue
         try:
             found = importlib.import_module(f"curvslice.verify.{stage}").checks(outdir)
+        except ImportError:
+            raise  # a missing package is not a damaged folder: the CLI names the package to install
         except Exception as exc:  # a damaged file the artefact check could not see: a FAIL, not a crash
             found = [Check(stage, "re-check ran", False, type(exc).__name__, str(exc)[:200])]
         results.extend(found or [])
