@@ -15,7 +15,8 @@ import numpy as np
 
 from curvslice.collision import CollisionScene
 from curvslice.kinematics import ROBOT_NAMES, fk_reference, ik, load_robot
-from curvslice.motion import circular_joints, ladder, plan_motion, shortest_path, step_times
+from curvslice.ladder import circular_joints, ladder, shortest_path
+from curvslice.motion import plan_motion, step_times
 from curvslice.workcell import load_workcell
 
 THESIS_INIT_S = 86.0

@@ -266,7 +266,8 @@ def _downstream(rec: Recorder, solid, grid, growing, platform, robot: str | None
 def _robot(rec: Recorder, tp, layers, platform, robot_name: str, target: int, counts: dict):
     from curvslice.collision import CollisionScene
     from curvslice.kinematics import load_robot
-    from curvslice.motion import circular_joints, ladder, plan_print, segment_speeds, shortest_path, step_times
+    from curvslice.ladder import circular_joints, ladder, shortest_path
+    from curvslice.motion import plan_print, segment_speeds, step_times
     from curvslice.workcell import load_workcell
 
     robot, cell = load_robot(robot_name), load_workcell(robot_name)
