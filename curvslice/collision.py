@@ -6,7 +6,9 @@ printed so far (the union of earlier layers; both carried by the flange through 
 static extruder (nozzle frame N) and obstacles (base frame B). Checked pairs: robot self-collision
 (except the pairs the robot declares allowed), every robot link and every carried body against every
 static body, and the carried bodies against every link except the one they are mounted on.
-A bounding-sphere test, vectorized over poses, sends only overlapping pairs to fcl.
+A bounding-box test, vectorized over poses, sends only overlapping pairs to fcl; with ``bounds``
+the conservative sphere proxy of :mod:`curvslice.collision_estimate` prunes the pairs further (a
+pair it proves apart cannot touch, so every answer is still fcl's).
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import fcl
 import numpy as np
 import trimesh
 
+from curvslice.collision_estimate import SphereBounds
 from curvslice.kinematics import Robot, fk, link_placements
 from curvslice.workcell import Body, Workcell
 
@@ -69,7 +72,8 @@ def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -
 class CollisionScene:
     """Collision queries for arm configurations of one robot in one workcell (mm, rad)."""
 
-    def __init__(self, robot: Robot, cell: Workcell, platform_vertices: np.ndarray | None = None):
+    def __init__(self, robot: Robot, cell: Workcell, platform_vertices: np.ndarray | None = None,
+                 bounds: bool = False):
         self.robot = robot
         self.mount = cell.platform_mount
         self.links = [_mesh_shape(s.link, s.mesh) for s in robot.links]
@@ -83,7 +87,10 @@ class CollisionScene:
             self.static_poses.append(body.pose)
         for shape, pose in zip(self.static, self.static_poses):
             _set(shape.obj, pose)
-        self.carried = [_mesh_shape("platform", platform_mesh(cell, platform_vertices))]
+        platform = platform_mesh(cell, platform_vertices)
+        self.carried = [_mesh_shape("platform", platform)]
+        self.bounds = SphereBounds(robot, cell, platform) if bounds else None
+        self.fcl_configs = 0  # configurations that needed at least one fcl pair test
         self._flange_link = max(range(len(robot.links)), key=lambda k: robot.links[k].joint)
         self._build_pairs()
 
@@ -92,6 +99,8 @@ class CollisionScene:
         self.carried = self.carried[:1]
         if mesh is not None and len(mesh.faces):
             self.carried.append(_mesh_shape("part", mesh))
+        if self.bounds is not None:
+            self.bounds.set_part(mesh)
         self._build_pairs()
 
     def for_layer(self, layers: list[trimesh.Trimesh], layer: int):
@@ -136,11 +145,8 @@ class CollisionScene:
     def _collisions(self, q: np.ndarray) -> np.ndarray:
         poses = self._poses(q)
         a, b = self.pairs[:, 0], self.pairs[:, 1]
-        # world-aligned boxes around every body: pairs whose boxes are disjoint cannot touch
-        R = poses[..., :3, :3]
-        centre = (R @ self.centers[..., None])[..., 0] + poses[..., :3, 3]
-        reach = (np.abs(R) @ self.halves[..., None])[..., 0]
-        near = (np.abs(centre[:, a] - centre[:, b]) <= reach[:, a] + reach[:, b]).all(axis=-1)
+        near = self._near(poses)
+        self.fcl_configs += int(near.any(axis=1).sum())
         hit = np.zeros(len(q), bool)
         # carried-vs-static pairs depend on the flange pose only, shared by all IK branches of a
         # pose: test them once per distinct flange pose
@@ -155,6 +161,25 @@ class CollisionScene:
         self._test(poses, near, np.flatnonzero(~hit & near[:, ~flange_only].any(axis=1)),
                    np.flatnonzero(~flange_only), out=hit)
         return hit
+
+    def maybe_colliding(self, q: np.ndarray) -> np.ndarray:
+        """(n,) bool: False where the bounding boxes (and ``bounds``) prove every pair apart."""
+        q = np.atleast_2d(np.asarray(q, float))
+        return np.concatenate([self._near(self._poses(q[s : s + 256])).any(axis=1) for s in range(0, len(q), 256)]
+                              + [np.zeros(0, bool)])
+
+    def _near(self, poses: np.ndarray) -> np.ndarray:
+        """(n, pairs) bool: the pairs not proven apart by world-aligned boxes around every body
+        (and by the sphere ``bounds``)."""
+        a, b = self.pairs[:, 0], self.pairs[:, 1]
+        R = poses[..., :3, :3]
+        centre = (R @ self.centers[..., None])[..., 0] + poses[..., :3, 3]
+        reach = (np.abs(R) @ self.halves[..., None])[..., 0]
+        near = (np.abs(centre[:, a] - centre[:, b]) <= reach[:, a] + reach[:, b]).all(axis=-1)
+        if self.bounds is not None:
+            some = np.flatnonzero(near.any(axis=0))
+            near[:, some] &= self.bounds.pair_bounds(poses, self.pairs[some]) <= 0
+        return near
 
     def _test(self, poses: np.ndarray, near: np.ndarray, rows: np.ndarray, pairs: np.ndarray,
               out: np.ndarray | None = None) -> np.ndarray:

@@ -86,6 +86,21 @@ def unwind(q: np.ndarray, segment: np.ndarray, lower: np.ndarray, upper: np.ndar
     return out, sorted(splits)
 
 
+#: rungs before a split whose rotation sampling is refined with it (§4.3.1)
+REFINE_WINDOW = 8
+#: the smallest p a ladder starts from before halving stops (Eq. 4.3)
+MIN_START_ROTATIONS = 8
+
+
+def start_rotations(rotations: int) -> int:
+    """p a ladder starts from: ``rotations`` halved while it stays even and ≥ MIN_START_ROTATIONS, so
+    that doubling it per rung reaches ``rotations`` again (30 -> 15)."""
+    p = int(rotations)
+    while p % 2 == 0 and p // 2 >= MIN_START_ROTATIONS:
+        p //= 2
+    return p
+
+
 def plan_motion(
     robot: Robot,
     cell: Workcell,
@@ -96,36 +111,79 @@ def plan_motion(
     cost: str = "l1",
     weights: np.ndarray | None = None,
     max_rotations: int | None = None,
+    dense: np.ndarray | None = None,
 ) -> Motion:
     """Joint trajectory for one waypoint sequence (a layer's tool-paths, in print order).
 
-    ``dt`` (m-1,) are the step times; ``collides(q) -> bool`` marks poses in collision. p starts at
-    ``cell.rotations`` and doubles while the motion needs splits and doubling reduces them, up to
-    ``max_rotations`` (default 4 p); the ladder with the fewest breaks is kept.
+    ``dt`` (m-1,) are the step times; ``collides(q) -> bool`` marks poses in collision. Every rung
+    starts with p = :func:`start_rotations` of ``cell.rotations``; while the motion has breaks (splits
+    or skipped waypoints) p is doubled, up to ``max_rotations`` (default 4 × ``cell.rotations``), on
+    the rungs of the breaks only (a skipped rung, and the ``REFINE_WINDOW`` rungs up to a split) and
+    the search repeated while that removes breaks (§4.3.1); the ladder with the fewest breaks is kept.
+    θ samples nest (those of p are every other one of 2p), so collision answers carry over. Rungs
+    marked ``dense`` (m,) bool are refined with every break (e.g. those around a deviated tool axis).
     """
     positions = np.asarray(positions, float)
     normals = np.asarray(normals, float)
+    m = len(positions)
     lo, hi = cell.limits(robot)
     circ = circular_joints(lo, hi)
-    p = cell.rotations
+    p = start_rotations(cell.rotations)
     limit = max_rotations or 4 * cell.rotations
+    level = np.full(m, p)  # p of each rung
+    q, solved = ladder(robot, cell, positions, normals, p)
+    solved_at = np.full(m, p)  # p of the IK solutions held for each rung
+    known = np.zeros((m, 8 * p), np.int8)  # collision answers: 0 unknown, 1 free, -1 colliding
     asked_total = 0
-    best = None
+    best, whole = None, False
     while True:
-        q, valid = ladder(robot, cell, positions, normals, p)
-        node_ok = None if collides is None else (lambda r, k: ~collides(q[r, k]))  # noqa: E731
+        redo = np.flatnonzero(solved_at < level)  # refined rungs: IK at the finer θ samples
+        if len(redo):
+            q[redo], solved[redo] = ladder(robot, cell, positions[redo], normals[redo], p)
+            solved_at[redo] = p
+        theta = np.arange(8 * p) // 8
+        valid = solved & (theta[None, :] % (p // level)[:, None] == 0)
+
+        def node_ok(r: np.ndarray, k: np.ndarray) -> np.ndarray:
+            nonlocal asked_total
+            ans = known[r, k]
+            todo = np.flatnonzero(ans == 0)
+            if len(todo):
+                ans[todo] = np.where(collides(q[r[todo], k[todo]]), -1, 1)
+                known[r[todo], k[todo]] = ans[todo]
+                asked_total += len(todo)
+            return ans > 0
+
         branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
-        path, _, asked = shortest_path(q, valid, dt, cell.max_joint_speed, circ, cost, weights, node_ok, branch)
-        asked_total += asked
+        path, _, _ = shortest_path(q, valid & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
+                                   None if collides is None else node_ok, branch)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
-        breaks = int((np.diff(path.segment[path.segment >= 0]) != 0).sum() + (path.node < 0).sum())
+        rows = np.flatnonzero(path.node >= 0)
+        split_rows = rows[1:][np.diff(path.segment[rows]) != 0]
+        breaks = len(split_rows) + m - len(rows)
         if best is None or breaks < best[0]:
-            best = (breaks, p, q, valid, path)
+            best = (breaks, int(level.max()), q.copy(), valid, path)
+        elif not whole and (level < p).any():
+            whole = True  # refining the breaks' rungs alone did not help: refine every rung at this p
+            level[:] = p
+            continue
         else:
             break  # a denser ladder did not help: the breaks come from the path itself (§4.3.1)
         if breaks == 0 or p * 2 > limit:
             break
+        refine = path.node < 0 if dense is None else (path.node < 0) | dense
+        for r in split_rows:
+            refine[max(r - REFINE_WINDOW, 0) : r + 1] = True
+        # θ samples nest: the nodes of p are the even ones of 2p (same IK branch order)
+        finer = np.full((m, 2 * p, 8, 6), np.nan)
+        finer[:, ::2] = q.reshape(m, p, 8, 6)
+        finer_ok = np.zeros((m, 2 * p, 8), bool)
+        finer_ok[:, ::2] = solved.reshape(m, p, 8)
+        finer_known = np.zeros((m, 2 * p, 8), np.int8)
+        finer_known[:, ::2] = known.reshape(m, p, 8)
         p *= 2
+        q, solved, known = finer.reshape(m, 8 * p, 6), finer_ok.reshape(m, 8 * p), finer_known.reshape(m, 8 * p)
+        level[refine], whole = p, False
     _, p, q, valid, path = best
     solutions = valid.sum(axis=1)
     starts = np.flatnonzero(np.r_[False, np.diff(path.segment[path.segment >= 0]) != 0])
@@ -215,7 +273,8 @@ def plan_print(
         while True:
             dt = step_times(positions[rows], speed, cell.min_step_time, axes, cell.tool_turn_speed) \
                 if len(rows) > 1 else np.zeros(0)
-            motion = plan_motion(robot, cell, positions[rows], axes, dt, collides, cost, None, max_rotations)
+            near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
+            motion = plan_motion(robot, cell, positions[rows], axes, dt, collides, cost, None, max_rotations, near)
             checks += motion.collision_checks
             stuck = (motion.segment < 0) & ~tried
             if not stuck.any() or cell.max_axis_deviation <= 0:
