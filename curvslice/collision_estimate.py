@@ -17,15 +17,16 @@ Two estimators, both answering "surely free" or "maybe colliding" for arm config
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import trimesh
 from scipy.ndimage import distance_transform_edt
-from sklearn.svm import SVC
+from scipy.spatial import cKDTree
 
-from curvslice.kinematics import Robot
-from curvslice.workcell import Body, Workcell
+from curvslice.kinematics import Robot, fk, ik
+from curvslice.workcell import Body, Workcell, flange_poses, waypoints_from_flange
 
 SQRT3_2 = np.sqrt(3.0) / 2
 
@@ -45,6 +46,26 @@ def sphere_cover(mesh: trimesh.Trimesh, cell: float) -> tuple[np.ndarray, np.nda
     radius = np.zeros(len(cells))
     np.maximum.at(radius, group, reach)
     return centre, radius
+
+
+def axis_spheres(mesh: trimesh.Trimesh, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` spheres along a body's principal axis (a robot link is long and round) whose union
+    contains every triangle: the triangles (split to edges ≤ half a slab) are split into ``count`` slabs by the projection of their
+    centroid on the axis; a slab's sphere is centred in its vertices' bounding box and reaches its
+    farthest vertex."""
+    v = np.asarray(mesh.vertices, float)
+    axis = np.linalg.svd(v - v.mean(axis=0), full_matrices=False)[2][0]
+    v, f = trimesh.remesh.subdivide_to_size(v, np.asarray(mesh.faces), np.ptp(v @ axis) / count / 2)
+    tri = v[f]
+    t = tri.mean(axis=1) @ axis
+    group = np.minimum(((t - t.min()) / (np.ptp(t) + 1e-12) * count).astype(int), count - 1)
+    centre, radius = [], []
+    for g in np.unique(group):
+        pts = tri[group == g].reshape(-1, 3)
+        c = (pts.min(axis=0) + pts.max(axis=0)) / 2
+        centre.append(c)
+        radius.append(np.linalg.norm(pts - c, axis=1).max())
+    return np.array(centre), np.array(radius)
 
 
 def _body_mesh(body: Body) -> trimesh.Trimesh:
@@ -106,19 +127,19 @@ class SphereBounds:
     """Per-pair lower bounds on the distance between the bodies of a :class:`CollisionScene`
     (same body order: links, carried platform [and part], static extruder and obstacle bodies)."""
 
-    def __init__(self, robot: Robot, cell: Workcell, platform: trimesh.Trimesh, link_cell: float = 30.0,
-                 static_cell: float = 2.0, part_cell: float = 6.0, grid: float = 0.8):
+    def __init__(self, robot: Robot, cell: Workcell, platform: trimesh.Trimesh, link_spheres: int = 8,
+                 static_cell: float = 4.0, platform_cell: float = 20.0, part_cell: float = 6.0, grid: float = 0.8):
         self.robot = robot
         self.static_bodies = list(cell.extruder) + list(cell.obstacles)
-        self.link_spheres = [sphere_cover(s.mesh, link_cell) for s in robot.links]
+        self.link_spheres = [axis_spheres(s.mesh, link_spheres) for s in robot.links]
         # huge obstacles (a table) would need huge spheres: their exact distance is used instead
-        self.static_spheres = [sphere_cover(_body_mesh(b), max(static_cell, max(b.dims) / 8)) if max(b.dims) <= 200
+        self.static_spheres = [sphere_cover(_body_mesh(b), max(static_cell, max(b.dims) / 6)) if max(b.dims) <= 200
                                else None for b in self.static_bodies]
         hull = platform.convex_hull
         planes = np.c_[hull.face_normals, np.einsum("ij,ij->i", hull.face_normals, hull.triangles[:, 0])]
         planes = np.unique(np.round(planes, 9), axis=0)  # one plane per facet
         self.planes = (planes[:, :3], planes[:, 3])
-        self.carried_spheres = [sphere_cover(hull, part_cell)]
+        self.carried_spheres = [sphere_cover(hull, platform_cell)]
         self.carried_distance = [self._hull_distance]
         self.part_cell, self.grid = part_cell, grid
 
@@ -182,3 +203,104 @@ class SphereBounds:
                 s = spheres(link)
                 out[:, k] = (distance(carried, local(carried, s[0])) - s[1]).min(axis=1)
         return out
+
+
+THETA_SAMPLES = 72  # θ of a random contact sample is drawn from this many (5°) steps of Eq. 4.3
+
+
+def contact_configurations(robot: Robot, cell: Workcell, surface: trimesh.Trimesh, count: int,
+                           rng: np.random.Generator) -> np.ndarray:
+    """Configurations on the contact C-space (§4.4.2, initial sampling): random points of the
+    working surface, its normal (turned upwards) as the tool axis, a random θ (Eq. 4.3), every IK
+    solution inside the joint limits."""
+    points, faces = trimesh.sample.sample_surface(surface, count, seed=int(rng.integers(2**31)))
+    normals = surface.face_normals[faces] * np.where(surface.face_normals[faces][:, 2:3] < 0, -1.0, 1.0)
+    return _contact(robot, cell, points, normals, rng)
+
+
+def _contact(robot: Robot, cell: Workcell, points: np.ndarray, normals: np.ndarray,
+             rng: np.random.Generator, near: np.ndarray | None = None) -> np.ndarray:
+    """IK solutions (inside the limits) realizing waypoints (points, normals) at a random θ; with
+    ``near`` (n, 6) one per waypoint, the solution closest to it (the projection of Eq. 4.15)."""
+    keep = normals[:, 2] > -1 + 1e-6
+    points, normals = points[keep], normals[keep]
+    T = flange_poses(cell, points, normals, THETA_SAMPLES)
+    n = len(points)
+    if near is None:
+        T = T[np.arange(n), rng.integers(0, THETA_SAMPLES, n)]
+    q, ok = ik(robot, T.reshape(-1, 4, 4))
+    lo, hi = cell.limits(robot)
+    ok &= ((q >= lo - 1e-12) & (q <= hi + 1e-12)).all(axis=-1)
+    if near is None:
+        return q[ok]
+    q = q.reshape(n, -1, 6)
+    d = np.where(ok.reshape(n, -1), np.linalg.norm(_wrap(q - near[keep][:, None]), axis=-1), np.inf)
+    best = d.argmin(axis=1)
+    found = np.isfinite(d[np.arange(n), best])
+    return q[np.arange(n), best][found]
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def project_to_contact(robot: Robot, cell: Workcell, surface: trimesh.Trimesh, q: np.ndarray,
+                       rng: np.random.Generator) -> np.ndarray:
+    """Υ of Eq. 4.15, approximated: the nozzle tip of FK(q) moved to the closest point of the
+    working surface S (tool axis = S's normal there), the IK solution nearest to q (over θ steps)."""
+    tip, _ = waypoints_from_flange(cell, fk(robot, q))
+    points, _, faces = trimesh.proximity.closest_point(surface, tip)
+    normals = surface.face_normals[faces] * np.where(surface.face_normals[faces][:, 2:3] < 0, -1.0, 1.0)
+    return _contact(robot, cell, points, normals, rng, near=q)
+
+
+def contact_centred_samples(robot: Robot, cell: Workcell, surface: trimesh.Trimesh,
+                            collides: Callable[[np.ndarray], np.ndarray], initial: int = 300,
+                            total: int = 3000, k: int = 20, tau_alpha: float = 0.8, tau_beta: float = 0.05,
+                            rng: np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Algorithm 7: initial samples on the contact C-space, then rounds of up-scaling (a midpoint
+    between k-NN farther than τ_α apart) and boundary refinement (between k-NN with different labels
+    farther than τ_β apart), half of the new samples projected onto the contact C-space (Eq. 4.15),
+    until nothing is added or ``total`` samples exist. Returns samples (n, 6) and labels (n,) bool."""
+    rng = rng or np.random.default_rng(0)
+    q = contact_configurations(robot, cell, surface, initial, rng)
+    label = collides(q)
+    while len(q) < total:
+        tree = cKDTree(q)
+        dist, nn = tree.query(q, k=min(k + 1, len(q)))
+        dist, nn = dist[:, 1:], nn[:, 1:]
+        far = dist > tau_alpha  # up-scaling
+        boundary = (dist > tau_beta) & (label[nn] != label[:, None])  # refinement
+        i, j = np.nonzero(far | boundary)
+        pairs = np.unique(np.sort(np.c_[np.arange(len(q))[i], nn[i, j]], axis=1), axis=0)
+        if len(pairs) == 0:
+            break
+        rng.shuffle(pairs)
+        pairs = pairs[: total - len(q)]
+        new = (q[pairs[:, 0]] + q[pairs[:, 1]]) / 2
+        half = rng.random(len(new)) >= 0.5
+        new = np.vstack([new[~half], project_to_contact(robot, cell, surface, new[half], rng)])
+        q = np.vstack([q, new])
+        label = np.r_[label, collides(new)]
+    return q, label
+
+
+class LearnedCollision:
+    """Γ̃(q) = Σ α_i K(q_i, q) + b (Eq. 4.14), Gaussian kernel γ = 0.7, trained with scikit-learn's
+    ``SVC`` on the samples of Algorithm 7; b is raised by ε = 1 (§4.4.1) and further until every
+    colliding training sample has Γ̃ ≥ 0 (the safe side). Γ̃ < 0: estimated free."""
+
+    def __init__(self, samples: np.ndarray, labels: np.ndarray, gamma: float = 0.7, epsilon: float = 1.0):
+        from sklearn.svm import SVC  # imported here: only the estimator needs scikit-learn (1-2 s to import)
+
+        self.svm = SVC(kernel="rbf", gamma=gamma, C=10.0).fit(samples, labels.astype(int))
+        score = self.svm.decision_function(samples)
+        self.shift = max(epsilon, float(-score[labels].min()) if labels.any() else 0.0)
+        self.kernels = int(self.svm.support_.size)
+
+    def indication(self, q: np.ndarray) -> np.ndarray:
+        """Γ̃ at configurations q (n, 6)."""
+        return self.svm.decision_function(np.atleast_2d(q)) + self.shift
+
+    def maybe_colliding(self, q: np.ndarray) -> np.ndarray:
+        return self.indication(q) >= 0
