@@ -69,6 +69,10 @@ def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -
     return disc
 
 
+#: printed layers per BVH of the carried part (see :meth:`CollisionScene.for_layer`)
+PART_BLOCK = 16
+
+
 class CollisionScene:
     """Collision queries for arm configurations of one robot in one workcell (mm, rad)."""
 
@@ -91,22 +95,41 @@ class CollisionScene:
         self.carried = [_mesh_shape("platform", platform)]
         self.bounds = SphereBounds(robot, cell, platform) if bounds else None
         self.fcl_configs = 0  # configurations that needed at least one fcl pair test
+        self._blocks: dict[tuple[int, ...], _Shape] = {}  # the BVH of the earlier whole blocks of layers
         self._flange_link = max(range(len(robot.links)), key=lambda k: robot.links[k].joint)
         self._build_pairs()
 
     def set_part(self, mesh: trimesh.Trimesh | None) -> None:
         """The printed part (model frame) carried on the platform; ``None`` or empty removes it."""
-        self.carried = self.carried[:1]
-        if mesh is not None and len(mesh.faces):
-            self.carried.append(_mesh_shape("part", mesh))
+        self._carry([_mesh_shape("part", mesh)] if mesh is not None and len(mesh.faces) else [], mesh)
+
+    def _carry(self, parts: list[_Shape], mesh: trimesh.Trimesh | None) -> None:
+        self.carried = self.carried[:1] + parts
         if self.bounds is not None:
             self.bounds.set_part(mesh)
         self._build_pairs()
 
     def for_layer(self, layers: list[trimesh.Trimesh], layer: int):
-        """Carry the union of layers 1..layer-1 (print order) and return :meth:`collisions`."""
-        earlier = [m for m in layers[: max(layer - 1, 0)] if len(m.faces)]
-        self.set_part(trimesh.util.concatenate(earlier) if earlier else None)
+        """Carry the union of layers 1..layer-1 (print order) and return :meth:`collisions`.
+
+        The part is carried as two BVHs: the layers before the last multiple of ``PART_BLOCK``
+        (built once per block of layers and reused) and the few layers after it (rebuilt each time);
+        rebuilding the whole part every layer is quadratic in the layers."""
+        earlier = layers[: max(layer - 1, 0)]
+        cut = len(earlier) // PART_BLOCK * PART_BLOCK
+        parts = []
+        for block, keep in ((earlier[:cut], True), (earlier[cut:], False)):
+            block = [m for m in block if len(m.faces)]
+            key = tuple(id(m) for m in block)
+            shape = self._blocks.get(key)
+            if shape is None and block:
+                shape = _mesh_shape("part", trimesh.util.concatenate(block))
+                if keep:
+                    self._blocks = {key: shape}
+            if shape is not None:
+                parts.append(shape)
+        nonempty = [m for m in earlier if len(m.faces)]
+        self._carry(parts, trimesh.util.concatenate(nonempty) if self.bounds is not None and nonempty else None)
         return self.collisions
 
     def _build_pairs(self) -> None:
@@ -123,6 +146,7 @@ class CollisionScene:
         for c in range(C):
             pairs += [(L + c, a) for a in range(L) if a != self._flange_link]
         self.pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        self._hits = np.zeros(len(self.pairs))
         self.shapes = self.links + self.carried + self.static
         self.centers = np.array([s.center for s in self.shapes])
         self.halves = np.array([s.half for s in self.shapes])
@@ -188,6 +212,7 @@ class CollisionScene:
         found = np.zeros(len(rows), bool)
         request = fcl.CollisionRequest()
         n_moving = len(self.shapes) - len(self.static)
+        pairs = pairs[np.argsort(-self._hits[pairs], kind="stable")]  # the pairs found in contact most often first
         for r, i in enumerate(rows):
             placed = set()
             for k in pairs[near[i, pairs]]:
@@ -198,6 +223,7 @@ class CollisionScene:
                         placed.add(body)
                 if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, fcl.CollisionResult()):
                     found[r] = True
+                    self._hits[k] += 1
                     break
         if out is not None:
             out[rows] |= found
