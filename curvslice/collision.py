@@ -69,6 +69,8 @@ def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -
     return disc
 
 
+#: link vertices tested against the static boxes before fcl (see :meth:`CollisionScene._inside_box`)
+PROBES = 24
 #: printed layers per BVH of the carried part (see :meth:`CollisionScene.for_layer`)
 PART_BLOCK = 16
 
@@ -96,6 +98,17 @@ class CollisionScene:
         self.bounds = SphereBounds(robot, cell, platform) if bounds else None
         self.fcl_configs = 0  # configurations that needed at least one fcl pair test
         self._blocks: dict[tuple[int, ...], _Shape] = {}  # the BVH of the earlier whole blocks of layers
+        # probes for _inside_box, per connected piece of every link mesh (body frame): up to PROBES
+        # of its vertices, the link carrying it, its bounding sphere
+        pieces = [(k, piece) for k, s in enumerate(robot.links) for piece in s.mesh.split(only_watertight=False)]
+        self._probe = np.stack([np.asarray(m.vertices)[np.linspace(0, len(m.vertices) - 1, PROBES).astype(int)]
+                                for _, m in pieces])
+        self._probe_link = np.array([k for k, _ in pieces])
+        self._sphere = np.array([np.r_[m.bounds.mean(axis=0), np.linalg.norm(m.vertices - m.bounds.mean(axis=0), axis=1).max()]
+                                 for _, m in pieces])
+        self._boxes = [(np.linalg.inv(pose), np.asarray(shape_half))
+                       for body, pose, shape_half in zip(list(cell.extruder) + list(cell.obstacles), self.static_poses,
+                                                         [s.half for s in self.static]) if body.kind == "box"]
         self._flange_link = max(range(len(robot.links)), key=lambda k: robot.links[k].joint)
         self._build_pairs()
 
@@ -170,13 +183,13 @@ class CollisionScene:
         poses = self._poses(q)
         a, b = self.pairs[:, 0], self.pairs[:, 1]
         near = self._near(poses)
-        self.fcl_configs += int(near.any(axis=1).sum())
-        hit = np.zeros(len(q), bool)
+        hit = self._inside_box(poses)
+        self.fcl_configs += int((near.any(axis=1) & ~hit).sum())
         # carried-vs-static pairs depend on the flange pose only, shared by all IK branches of a
         # pose: test them once per distinct flange pose
         L = len(self.links)
         flange_only = (a >= L) & (a < L + len(self.carried)) & (b >= len(self.shapes) - len(self.static))
-        rows = np.flatnonzero(near[:, flange_only].any(axis=1))
+        rows = np.flatnonzero(~hit & near[:, flange_only].any(axis=1))
         if len(rows):
             key = np.round(poses[rows, L, :3, :].reshape(len(rows), -1), 6)
             _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
@@ -184,6 +197,28 @@ class CollisionScene:
             hit[rows] = pose_hit[inverse.ravel()]
         self._test(poses, near, np.flatnonzero(~hit & near[:, ~flange_only].any(axis=1)),
                    np.flatnonzero(~flange_only), out=hit)
+        return hit
+
+    def _inside_box(self, poses: np.ndarray) -> np.ndarray:
+        """(n,) bool: a robot link surely meets a static box (the table, a post): one of its vertices
+        lies inside the box, or a connected piece of its mesh whose bounding sphere stays within the
+        box's footprint has vertices on both sides of the box's slab, so its surface crosses the
+        solid box. Either is a contact fcl reports for that checked pair: a cheap, exact witness for
+        the most common collision (an elbow-down branch through the table)."""
+        if not self._boxes:
+            return np.zeros(len(poses), bool)
+        placed = poses[:, self._probe_link]  # (n, pieces, 4, 4)
+        probe = np.swapaxes(self._probe, 1, 2)  # (pieces, 3, V)
+        hit = np.zeros(len(poses), bool)
+        for T_inv, half in self._boxes:
+            M = T_inv @ placed  # piece frames in the box frame
+            local = M[..., :3, :3] @ probe + M[..., :3, 3:]  # (n, pieces, 3, V)
+            inside = (np.abs(local) < half[:, None] - 1e-6).all(axis=2).any(axis=2)
+            c = (M[..., :3, :3] @ self._sphere[:, :3, None])[..., 0] + M[..., :3, 3]
+            within = (np.abs(c[..., :2]) + self._sphere[:, 3:] < half[:2]).all(axis=-1)
+            z = local[:, :, 2]
+            across = within & (z.min(axis=2) < half[2] - 1e-6) & (z.max(axis=2) > -half[2] + 1e-6)
+            hit |= (inside | across).any(axis=1)
         return hit
 
     def maybe_colliding(self, q: np.ndarray) -> np.ndarray:

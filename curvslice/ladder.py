@@ -131,22 +131,27 @@ def _relax(
     edges: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]],
 ) -> None:
     """Fill ``best``/``pred`` for rungs ``start..m-1`` (rung start-1 already final)."""
-    m = len(valid)
+    m, K = valid.shape
+    reached = np.isfinite(best[max(start, 1) - 1]).any() if start > 0 else False
     for i in range(max(start, 0), m):
-        best[i] = np.inf
-        pred[i] = -1
-        if i > 0 and np.isfinite(best[i - 1]).any():
+        row, back = best[i], pred[i]
+        row.fill(np.inf)
+        back.fill(-1)
+        if i > 0 and reached:
             ia, ib, w = edges(i - 1)
             total = best[i - 1][ia] + w
-            ok = np.isfinite(total) & valid[i][ib]
+            ok = valid[i][ib] & (total < np.inf)
             ia, ib, total = ia[ok], ib[ok], total[ok]
             if len(ib):
-                order = np.lexsort((ia, total, ib))  # per target: least cost, then first source
-                first = order[np.r_[True, ib[order][1:] != ib[order][:-1]]]
-                best[i][ib[first]] = total[first]
-                pred[i][ib[first]] = ia[first]
+                np.minimum.at(row, ib, total)  # per target: least cost ...
+                tie = total == row[ib]
+                first = np.full(K, K)
+                np.minimum.at(first, ib[tie], ia[tie])  # ... then first source
+                hit = first < K
+                back[hit] = first[hit]
                 continue
-        best[i] = np.where(valid[i], 0.0, np.inf)  # sources: a new motion starts here
+        row[valid[i]] = 0.0  # sources: a new motion starts here
+        reached = bool(valid[i].any())
 
 
 def _backtrack(best: np.ndarray, pred: np.ndarray) -> LadderPath:

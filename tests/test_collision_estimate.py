@@ -83,3 +83,19 @@ def test_learned_indication_is_safe_on_its_samples(obstacle_scene):
     svm = LearnedCollision(q, label)
     assert (svm.indication(q[label]) >= 0).all()  # the shifted bias keeps every contact on the safe side
     assert svm.shift >= 1.0 and 0 < svm.kernels <= len(q)
+
+
+def test_box_witness_is_a_contact_fcl_reports(obstacle_scene):
+    """The cheap exact witness (a link vertex in a static box, or a link piece through the table's
+    slab) only flags configurations where fcl finds a contact, and flags the table collisions of
+    elbow-down branches."""
+    robot, cell, surface = obstacle_scene
+    scene = CollisionScene(robot, cell)
+    rng = np.random.default_rng(4)
+    q = contact_configurations(robot, cell, surface, 120, rng)
+    lo, hi = cell.limits(robot)
+    q = np.vstack([q, rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi), (300, 6))])
+    witness = scene._inside_box(scene._poses(q))
+    assert witness.sum() > 20
+    assert all(scene.colliding_pairs(x) for x in q[witness])
+    np.testing.assert_array_equal(scene.collisions(q), [bool(scene.colliding_pairs(x)) for x in q])
