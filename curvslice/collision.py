@@ -106,9 +106,9 @@ class CollisionScene:
         self._probe_link = np.array([k for k, _ in pieces])
         self._sphere = np.array([np.r_[m.bounds.mean(axis=0), np.linalg.norm(m.vertices - m.bounds.mean(axis=0), axis=1).max()]
                                  for _, m in pieces])
-        self._boxes = [(np.linalg.inv(pose), np.asarray(shape_half))
-                       for body, pose, shape_half in zip(list(cell.extruder) + list(cell.obstacles), self.static_poses,
-                                                         [s.half for s in self.static]) if body.kind == "box"]
+        self._boxes = [(np.linalg.inv(pose), np.asarray(shape.half), k)
+                       for k, (body, pose, shape) in enumerate(zip(list(cell.extruder) + list(cell.obstacles),
+                                                                   self.static_poses, self.static)) if body.kind == "box"]
         self._flange_link = max(range(len(robot.links)), key=lambda k: robot.links[k].joint)
         self._build_pairs()
 
@@ -183,7 +183,12 @@ class CollisionScene:
         poses = self._poses(q)
         a, b = self.pairs[:, 0], self.pairs[:, 1]
         near = self._near(poses)
-        hit = self._inside_box(poses)
+        hit = np.zeros(len(q), bool)
+        L, first_static = len(self.links), len(self.shapes) - len(self.static)
+        for T_inv, half, s in self._boxes:  # only where a link's bounding box overlaps that static box
+            rows = np.flatnonzero(~hit & near[:, (a < L) & (b == first_static + s)].any(axis=1))
+            if len(rows):
+                hit[rows] = self._inside_box(poses[rows], T_inv, half)
         self.fcl_configs += int((near.any(axis=1) & ~hit).sum())
         # carried-vs-static pairs depend on the flange pose only, shared by all IK branches of a
         # pose: test them once per distinct flange pose
@@ -199,27 +204,21 @@ class CollisionScene:
                    np.flatnonzero(~flange_only), out=hit)
         return hit
 
-    def _inside_box(self, poses: np.ndarray) -> np.ndarray:
-        """(n,) bool: a robot link surely meets a static box (the table, a post): one of its vertices
-        lies inside the box, or a connected piece of its mesh whose bounding sphere stays within the
-        box's footprint has vertices on both sides of the box's slab, so its surface crosses the
-        solid box. Either is a contact fcl reports for that checked pair: a cheap, exact witness for
-        the most common collision (an elbow-down branch through the table)."""
-        if not self._boxes:
-            return np.zeros(len(poses), bool)
-        placed = poses[:, self._probe_link]  # (n, pieces, 4, 4)
-        probe = np.swapaxes(self._probe, 1, 2)  # (pieces, 3, V)
-        hit = np.zeros(len(poses), bool)
-        for T_inv, half in self._boxes:
-            M = T_inv @ placed  # piece frames in the box frame
-            local = M[..., :3, :3] @ probe + M[..., :3, 3:]  # (n, pieces, 3, V)
-            inside = (np.abs(local) < half[:, None] - 1e-6).all(axis=2).any(axis=2)
-            c = (M[..., :3, :3] @ self._sphere[:, :3, None])[..., 0] + M[..., :3, 3]
-            within = (np.abs(c[..., :2]) + self._sphere[:, 3:] < half[:2]).all(axis=-1)
-            z = local[:, :, 2]
-            across = within & (z.min(axis=2) < half[2] - 1e-6) & (z.max(axis=2) > -half[2] + 1e-6)
-            hit |= (inside | across).any(axis=1)
-        return hit
+    def _inside_box(self, poses: np.ndarray, T_inv: np.ndarray, half: np.ndarray) -> np.ndarray:
+        """(n,) bool: a robot link surely meets the static box (T_inv: base to box frame, half
+        extents): one of its vertices lies inside the box, or a connected piece of its mesh whose
+        bounding sphere stays within the box's footprint has vertices on both sides of the box's
+        slab, so its surface crosses the solid box. Either is a contact fcl reports for that checked
+        pair: a cheap, exact witness for the most common collision (an elbow-down branch through the
+        table)."""
+        M = T_inv @ poses[:, self._probe_link]  # (n, pieces, 4, 4): link pieces in the box frame
+        local = M[..., :3, :3] @ np.swapaxes(self._probe, 1, 2) + M[..., :3, 3:]  # (n, pieces, 3, V)
+        inside = (np.abs(local) < half[:, None] - 1e-6).all(axis=2).any(axis=2)
+        c = (M[..., :3, :3] @ self._sphere[:, :3, None])[..., 0] + M[..., :3, 3]
+        within = (np.abs(c[..., :2]) + self._sphere[:, 3:] < half[:2]).all(axis=-1)
+        z = local[:, :, 2]
+        across = within & (z.min(axis=2) < half[2] - 1e-6) & (z.max(axis=2) > -half[2] + 1e-6)
+        return (inside | across).any(axis=1)
 
     def maybe_colliding(self, q: np.ndarray) -> np.ndarray:
         """(n,) bool: False where the bounding boxes (and ``bounds``) prove every pair apart."""

@@ -95,7 +95,10 @@ def test_box_witness_is_a_contact_fcl_reports(obstacle_scene):
     q = contact_configurations(robot, cell, surface, 120, rng)
     lo, hi = cell.limits(robot)
     q = np.vstack([q, rng.uniform(np.maximum(lo, -np.pi), np.minimum(hi, np.pi), (300, 6))])
-    witness = scene._inside_box(scene._poses(q))
+    poses = scene._poses(q)
+    witness = np.zeros(len(q), bool)
+    for T_inv, half, _ in scene._boxes:
+        witness |= scene._inside_box(poses, T_inv, half)
     assert witness.sum() > 20
     assert all(scene.colliding_pairs(x) for x in q[witness])
     np.testing.assert_array_equal(scene.collisions(q), [bool(scene.colliding_pairs(x)) for x in q])
