@@ -119,7 +119,7 @@ class CollisionScene:
     def _carry(self, parts: list[_Shape], mesh: trimesh.Trimesh | None) -> None:
         self.carried = self.carried[:1] + parts
         if self.bounds is not None:
-            self.bounds.set_part(mesh)
+            self.bounds.set_part(mesh, len(parts))
         self._build_pairs()
 
     def for_layer(self, layers: list[trimesh.Trimesh], layer: int):

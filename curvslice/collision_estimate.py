@@ -147,12 +147,13 @@ class SphereBounds:
         n, d = self.planes
         return np.maximum(x @ n.T - d, 0.0).max(axis=-1)
 
-    def set_part(self, mesh: trimesh.Trimesh | None) -> None:
-        """The printed part (model frame P), or ``None``."""
+    def set_part(self, mesh: trimesh.Trimesh | None, shapes: int = 1) -> None:
+        """The printed part (model frame P), or ``None``; the scene carries it as ``shapes`` bodies
+        (pieces of it), each bounded here by the whole part (a piece is no nearer than the whole)."""
         del self.carried_spheres[1:], self.carried_distance[1:]
         if mesh is not None and len(mesh.faces):
-            self.carried_spheres.append(sphere_cover(mesh, self.part_cell))
-            self.carried_distance.append(distance_grid(mesh, self.grid))
+            self.carried_spheres += [sphere_cover(mesh, self.part_cell)] * shapes
+            self.carried_distance += [distance_grid(mesh, self.grid)] * shapes
 
     def pair_bounds(self, poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
         """(n, len(pairs)) lower bounds (mm; ≤ 0: maybe touching) for body poses (n, bodies, 4, 4)
@@ -289,6 +290,12 @@ class LearnedCollision:
     """Γ̃(q) = Σ α_i K(q_i, q) + b (Eq. 4.14), Gaussian kernel γ = 0.7, trained with scikit-learn's
     ``SVC`` on the samples of Algorithm 7; b is raised by ε = 1 (§4.4.1) and further until every
     colliding training sample has Γ̃ ≥ 0 (the safe side). Γ̃ < 0: estimated free."""
+
+    def calibrate(self, samples: np.ndarray, labels: np.ndarray) -> None:
+        """Raise the bias further until every colliding configuration of a held-out labelled set has
+        Γ̃ ≥ 0 (the training set alone leaves false "free" near it)."""
+        if labels.any():
+            self.shift = max(self.shift, self.shift - float(self.indication(samples[labels]).min()))
 
     def __init__(self, samples: np.ndarray, labels: np.ndarray, gamma: float = 0.7, epsilon: float = 1.0):
         from sklearn.svm import SVC  # imported here: only the estimator needs scikit-learn (1-2 s to import)
