@@ -243,7 +243,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     g = p.add_argument_group("robot (§3.5.3, §4.3.1)")
     g.add_argument("--robot", type=_workcell_arg, help=f"workcell: {', '.join(ROBOT_NAMES)} (shipped) or a workcell JSON file; "
                    "plans the arm's motion and writes joints.csv + programs (without it the robot stage is skipped)")
-    g.add_argument("--rotations", type=int, help="p, rotations about the nozzle axis per waypoint (default: the workcell's, 30)")
+    g.add_argument("--rotations", type=int,
+                   help="p, rotations about the nozzle axis per waypoint (default: the workcell's, 30); a ladder "
+                        "starts from p halved while ≥ 8 (30: 15) and doubles it per rung where the motion breaks")
     g.add_argument("--max-rotations", type=int, help="largest p when doubling to remove splits (default: 4 p)")
     g.add_argument("--motion-cost", default="l1", choices=("l1", "quadratic"), help="edge weight: Eq. 3.4 or Eq. 4.5")
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
