@@ -187,21 +187,23 @@ def shortest_path(
     weights: np.ndarray | None = None,
     node_ok: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     group: np.ndarray | None = None,
+    edge_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
 ) -> tuple[LadderPath, np.ndarray, int]:
     """Multi-source shortest path through a ladder (m rungs, K nodes, 6 joints), rung by rung.
 
     ``q`` (m, K, 6), ``valid`` (m, K), ``dt`` (m-1,) seconds. ``node_ok(rungs, nodes)`` (optional)
     returns which of the given nodes are usable (e.g. collision-free); it is called lazily on path
     nodes; where one is rejected, the other nodes of its ``group`` (labels (K,), e.g. the IK branch;
-    default: the whole rung) in that rung are asked too. Returns the path, the final validity mask, and how many nodes
-    ``node_ok`` was asked about.
+    default: the whole rung) in that rung are asked too. ``edge_cache`` (rung i -> edges i to i+1) may
+    carry edges over from an earlier call on the same nodes (edges to nodes invalid now are ignored).
+    Returns the path, the final validity mask, and how many nodes ``node_ok`` was asked about.
     """
     q = np.where(valid[..., None], q, np.nan)
     valid = valid.copy()
     m, K = valid.shape
     best = np.full((m, K), np.inf)
     pred = np.full((m, K), -1)
-    cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    cache = {} if edge_cache is None else edge_cache
 
     def edges(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         # edges only lose endpoints between passes (_relax masks invalid ones), so keep them

@@ -136,6 +136,7 @@ def plan_motion(
     known = np.zeros((m, 8 * p), np.int8)  # collision answers: 0 unknown, 1 free, -1 colliding
     asked_total = 0
     best, whole = None, False
+    edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # rung i -> its edges to rung i+1
     while True:
         redo = np.flatnonzero(solved_at < level)  # refined rungs: IK at the finer θ samples
         if len(redo):
@@ -156,7 +157,7 @@ def plan_motion(
 
         branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
         path, _, _ = shortest_path(q, valid & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
-                                   None if collides is None else node_ok, branch)
+                                   None if collides is None else node_ok, branch, edges)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
         rows = np.flatnonzero(path.node >= 0)
         split_rows = rows[1:][np.diff(path.segment[rows]) != 0]
@@ -166,6 +167,7 @@ def plan_motion(
         elif not whole and (level < p).any():
             whole = True  # refining the breaks' rungs alone did not help: refine every rung at this p
             level[:] = p
+            edges = {}
             continue
         else:
             break  # a denser ladder did not help: the breaks come from the path itself (§4.3.1)
@@ -184,6 +186,9 @@ def plan_motion(
         p *= 2
         q, solved, known = finer.reshape(m, 8 * p, 6), finer_ok.reshape(m, 8 * p), finer_known.reshape(m, 8 * p)
         level[refine], whole = p, False
+        # edges between two rungs that keep their nodes carry over, renumbered (node s·8+b -> 2s·8+b)
+        edges = {i: (2 * ia - ia % 8, 2 * ib - ib % 8, w) for i, (ia, ib, w) in edges.items()
+                 if not (refine[i] or refine[i + 1])}
     _, p, q, valid, path = best
     solutions = valid.sum(axis=1)
     starts = np.flatnonzero(np.r_[False, np.diff(path.segment[path.segment >= 0]) != 0])
