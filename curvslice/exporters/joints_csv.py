@@ -3,7 +3,7 @@
 Columns: ``layer, path, index, t, x, y, z, nx, ny, nz, q1 … q6, segment, extruding`` — the
 waypoint's layer and path id and its row in ``toolpaths.npz``, the time (s), the deposition point
 (mm) and the realized tool orientation in the model frame (the tool-path's unless the waypoint
-needed a bounded axis deviation, see :func:`curvslice.motion.deviate_axes`), the joint angles (rad), the motion segment (a new
+needed a bounded axis deviation, see :func:`curvslice.ladder.deviate_axes`), the joint angles (rad), the motion segment (a new
 value starts a new smooth motion after a disconnection, Fig. 3.11b) and whether the extruder runs
 while moving to the row (0/1).
 """
