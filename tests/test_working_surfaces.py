@@ -377,7 +377,7 @@ def test_slice_cli_rejects_a_bad_layer_height(shared_model, tmp_path, capsys):
     code = main(["slice", str(shared_model("kitten")), "--voxel", "3", "--layer-height", "-1",
                  "--out", str(tmp_path / "o"), "--quiet"])
     assert code == 2
-    assert "layer height" in capsys.readouterr().err
+    assert "--layer-height" in capsys.readouterr().err
 
 
 def test_layers_are_written_in_print_order(tmp_path):
