@@ -1,0 +1,118 @@
+"""Where the per-layer work of a stage runs: here, in order (the default, no Dask import), or on a
+Dask cluster (``dask.distributed``: a local one of N processes, or any existing one by address).
+
+Stages see one small interface, :class:`Executor`:
+
+* ``map(fn, items, **shared)`` — ``[fn(item, **shared) for item in items]``; each shared input is
+  sent once to every worker (scattered, broadcast), not once per task; results come back in order;
+* ``share(value)`` / ``submit(fn, *args, **kwargs)`` / ``gather(futures)`` — a task graph for work
+  whose tasks depend on each other (a sequential fold next to parallel per-layer tasks): in-process,
+  ``submit`` runs the call at once and returns its value, so both executors give the same results.
+
+Tasks are retried on another worker when theirs dies (``retries``); shared inputs live on every
+worker (broadcast), so losing one loses none of them. Which executor runs a stage never changes its
+result: the executor is an execution option, not a :class:`~curvslice.pipeline.Settings` field.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+from curvslice.errors import CurvsliceError
+
+#: Times a task is re-run after its worker died or it raised (a lost worker, not a bug, is the case).
+RETRIES = 3
+
+
+class InProcess:
+    """Every task runs here, at once, in submission order."""
+
+    workers = 1
+
+    def map(self, fn: Callable, items: Iterable, progress=None, **shared: Any) -> list:
+        out = []
+        for item in items:
+            out.append(fn(item, **shared))
+            if progress is not None:
+                progress.update(1)
+        return out
+
+    def share(self, value: Any) -> Any:
+        return value
+
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
+        return fn(*args, **kwargs)
+
+    def gather(self, futures: Sequence, progress=None) -> list:
+        if progress is not None:
+            progress.update(len(futures))
+        return list(futures)
+
+
+class DaskExecutor:
+    """Tasks on the workers of a ``dask.distributed`` client."""
+
+    def __init__(self, client: Any, retries: int = RETRIES):
+        self.client, self.retries = client, retries
+
+    @property
+    def workers(self) -> int:
+        return len(self.client.scheduler_info(n_workers=-1)["workers"])
+
+    def map(self, fn: Callable, items: Iterable, progress=None, **shared: Any) -> list:
+        shared = {k: self.share(v) for k, v in shared.items()}
+        futures = [self.submit(fn, item, **shared) for item in items]
+        return self.gather(futures, progress)
+
+    def share(self, value: Any) -> Any:
+        # wrapped in a list: scatter would otherwise split a list or dict into one future per element
+        return self.client.scatter([value], broadcast=True, hash=False)[0]
+
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
+        return self.client.submit(fn, *args, retries=self.retries, pure=False, priority=priority, **kwargs)
+
+    def gather(self, futures: Sequence, progress=None) -> list:
+        if progress is not None:
+            from dask.distributed import as_completed
+
+            for _ in as_completed(futures):
+                progress.update(1)
+        return self.client.gather(list(futures))
+
+
+Executor = InProcess | DaskExecutor
+
+
+@contextmanager
+def open_executor(workers: int | None = None, scheduler: str | None = None,
+                  retries: int = RETRIES) -> Iterator[Executor]:
+    """In-process without arguments; ``workers``: a local cluster of that many single-threaded worker
+    processes (on 127.0.0.1, no dashboard); ``scheduler``: the cluster at that address
+    (``tcp://host:8786``, e.g. of ``dask scheduler`` + ``dask worker``)."""
+    if workers is not None and scheduler is not None:
+        raise CurvsliceError("give either a number of local workers or a scheduler address, not both")
+    if workers is None and scheduler is None:
+        yield InProcess()
+        return
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        cluster = None
+        try:
+            client = Client(scheduler, timeout="20s")
+        except OSError as exc:
+            raise CurvsliceError(f"no Dask scheduler at {scheduler} ({exc})") from None
+    else:
+        if workers < 1:
+            raise CurvsliceError(f"the number of workers must be at least 1 (got {workers})")
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None)
+        client = Client(cluster)
+    try:
+        yield DaskExecutor(client, retries)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
