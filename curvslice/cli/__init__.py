@@ -16,7 +16,7 @@ from curvslice import __version__
 from curvslice.errors import CurvsliceError, missing_package
 
 #: Sub-command modules of ``curvslice.cli``, in the order ``--help`` lists them.
-COMMANDS = ("slice", "verify", "convert", "level", "drape", "view", "bench")
+COMMANDS = ("slice", "verify", "convert", "level", "drape", "view", "bench", "sweep")
 
 
 def build_parser(only: str | None = None) -> argparse.ArgumentParser:
