@@ -169,10 +169,6 @@ class Context:
     quiet: bool = True
     executor: Executor = field(default_factory=InProcess)
 
-    def map(self, fn: Callable, items: Any, progress=None, **shared: Any) -> list:
-        """``[fn(item, **shared) for item in items]`` on the executor, ``shared`` sent once per worker."""
-        return self.executor.map(fn, items, progress=progress, **shared)
-
     def bar(self, desc: str, total: int, unit: str = "voxel") -> tqdm:
         return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, leave=False, disable=self.quiet,
                     dynamic_ncols=True)
