@@ -68,7 +68,7 @@ def per_layer_costs(layers, settings, rule: str = "chain") -> dict:
 
 
 def amdahl(costs: dict, workers: tuple[int, ...] = (1, 2, 4, 8, 16, 32, 64), sequential_s: float = 0.0,
-           parallel_s: float = 0.0, scale: float = 1.0) -> list[dict]:
+           parallel_s: float = 0.0, scale: float = 1.0, chained: bool = True) -> list[dict]:
     """Projected seconds on N dedicated workers: the tool-path stage by :func:`makespan` of the measured
     per-layer costs, and with ``sequential_s`` / ``parallel_s`` the stages before it (the field and the
     layers' separation; the layers' contouring and trimming, split N ways), all times ``scale``. The
@@ -76,23 +76,24 @@ def amdahl(costs: dict, workers: tuple[int, ...] = (1, 2, 4, 8, 16, 32, 64), seq
     one = makespan(costs, 1, scale) + (sequential_s + parallel_s) * scale
     rows = []
     for n in workers:
-        stage = makespan(costs, n, scale)
+        stage = makespan(costs, n, scale, chained)
         whole = stage + (sequential_s + parallel_s / n) * scale
         rows.append({"workers": n, "toolpaths_s": round(stage, 1), "speedup": round(makespan(costs, 1, scale) / stage, 2),
                      "to_toolpaths_s": round(whole, 1), "total_speedup": round(one / whole, 2)})
     return rows
 
 
-def makespan(costs: dict, n: int, scale: float = 1.0) -> float:
+def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True) -> float:
     """Seconds the tool-path stage takes on ``n`` dedicated workers under the task priorities of
     :func:`plan_toolpaths` (folds 2, preparations 1, orientations 0; ties in submission order), by list
-    scheduling the measured per-layer costs (no transfer or scheduler overhead)."""
+    scheduling the measured per-layer costs (no transfer or scheduler overhead). ``chained=False``: a
+    start rule that does not depend on the previous layer (no fold waits for the one before)."""
     prep, fold, orient = ([c * scale for c in costs[k]] for k in ("prepare_s", "fold_s", "orient_s"))
     m = len(prep)
     done: dict[tuple[str, int], float] = {}
     free = [0.0] * n
     todo = [("fold", k) for k in range(m)] + [("prep", k) for k in range(m)] + [("orient", k) for k in range(m)]
-    need = {"prep": lambda k: [], "fold": lambda k: [("prep", k)] + ([("fold", k - 1)] if k else []),
+    need = {"prep": lambda k: [], "fold": lambda k: [("prep", k)] + ([("fold", k - 1)] if k and chained else []),
             "orient": lambda k: [("fold", k)]}
     cost = {"prep": prep, "fold": fold, "orient": orient}
     while todo:
@@ -106,6 +107,17 @@ def makespan(costs: dict, n: int, scale: float = 1.0) -> float:
         done[task] = start[task] + cost[task[0]][task[1]]
         free[w] = done[task]
     return max(done.values()) + costs["client_s"] * scale
+
+
+def resize(costs: dict, factor: float) -> dict:
+    """Per-layer costs of the same part with ``factor`` times the voxels: factor^(1/3) times the layers
+    (the part's height in voxel widths), each factor^(2/3) times the work (its area in voxels), the
+    measured profile stretched over the new layer count."""
+    m = len(costs["prepare_s"])
+    count = int(round(m * factor ** (1 / 3)))
+    where = np.minimum((np.arange(count) * m / count).astype(int), m - 1)
+    out = {k: [float(c) for c in np.asarray(costs[k])[where] * factor ** (2 / 3)] for k in ("prepare_s", "fold_s", "orient_s")}
+    return {**out, "client_s": costs["client_s"] * factor}
 
 
 def _import_plan() -> None:
@@ -138,6 +150,11 @@ def main() -> None:
                     help="also measure these start rules (travel between layers)")
     ap.add_argument("--skip-costs", action="store_true")
     ap.add_argument("--json", default=None)
+    ap.add_argument("--separation-s", type=float, default=0.0,
+                    help="seconds of the layers' separation (sequential) within the report's trimming_s")
+    ap.add_argument("--costs-from", help="per-layer costs from this earlier --json output instead of measuring")
+    ap.add_argument("--project-voxels", type=float, nargs="*", default=[],
+                    help="also project a part of this many voxels from the measured per-layer costs (resize)")
     args = ap.parse_args()
     folder = Path(args.folder)
     layers = load_layers(folder)
@@ -155,12 +172,16 @@ def main() -> None:
                 same = all(np.array_equal(getattr(reference, k), getattr(tp, k)) for k in ARRAYS)
                 out["runs"][-1]["identical"] = same
                 print("identical arrays:", same, flush=True)
-    inproc = [r["stage_s"] for r in out["runs"] if r["workers"] == 0]
-    dask = [r["stage_s"] for r in out["runs"] if r["workers"]]
-    out["speedup"] = round(float(np.median(inproc) / np.median(dask)), 3)
-    print("speed-up (median in-process / median with workers):", out["speedup"])
+    if out["runs"]:
+        for key in ("stage_s", "client_cpu_s"):
+            inproc = np.median([r[key] for r in out["runs"] if r["workers"] == 0])
+            dask = np.median([r[key] + (r["workers_cpu_s"] if key != "stage_s" else 0.0)
+                              for r in out["runs"] if r["workers"]])
+            out["ratio_" + key] = round(float(inproc / dask), 3)
+        print("in-process / with workers: wall %.3f, CPU seconds %.3f" % (out["ratio_stage_s"], out["ratio_client_cpu_s"]))
     if not args.skip_costs:
-        costs = per_layer_costs(layers, settings)
+        costs = json.loads(Path(args.costs_from).read_text())["costs"] if args.costs_from else \
+            per_layer_costs(layers, settings)
         out["costs"] = costs
         total = sum(costs["prepare_s"]) + sum(costs["fold_s"]) + sum(costs["orient_s"]) + costs["client_s"]
         print({k: round(sum(v), 2) if isinstance(v, list) else v for k, v in costs.items()},
@@ -171,9 +192,23 @@ def main() -> None:
                                     "fold_s": sum(ind["fold_s"])}
             print(f"start rule {rule}: travel between layers %.1f mm (chained: %.1f mm)"
                   % (ind["travel_between_layers_mm"], costs["travel_between_layers_mm"]))
-        out["projection"] = amdahl(costs)
-        for row in out["projection"]:
-            print(row)
+        report = json.loads((folder / "report.json").read_text())
+        field = sum(report["timings_s"].get(k, 0.0) for k in ("load", "voxelize", "peeling", "growing"))
+        split = report["layers"]  # contouring + trimming run per layer; separation and set-up do not
+        par = split["dual_contouring_s"] + split["trimming_s"] - args.separation_s
+        seq = field + report["timings_s"]["layers"] - par
+        cpu_share = sum(costs["prepare_s"] + costs["fold_s"] + costs["orient_s"]) / costs["wall_s"]
+        out["projection"] = {"field_and_layers_wall_s": [seq, par], "cpu_share_of_wall": cpu_share}
+        for voxels in [report["field"]["voxels"]] + args.project_voxels:
+            factor = voxels / report["field"]["voxels"]
+            c = resize(costs, factor)
+            for chained in (True, False):
+                rows = amdahl(c, sequential_s=seq * cpu_share * factor, parallel_s=par * cpu_share * factor,
+                              chained=chained)
+                out["projection"][f"{int(voxels)} voxels, {'chained' if chained else 'independent'} starts"] = rows
+                print(int(voxels), "voxels", "chained" if chained else "independent", flush=True)
+                for row in rows:
+                    print(row)
     out["loadavg_after"] = os.getloadavg()
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1, default=float))

@@ -107,8 +107,14 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
     else:
         if workers < 1:
             raise CurvsliceError(f"the number of workers must be at least 1 (got {workers})")
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None)
+        import dask
+
+        # Dask sets MALLOC_TRIM_THRESHOLD_ in its workers, which pins glibc's mmap threshold at 128 KiB:
+        # every mid-size numpy temporary of a layer's task is then mapped and zero-filled anew (+30% CPU
+        # measured on the kitten's tool-paths). Workers of a short run keep glibc's default instead.
+        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address=None)
         client = Client(cluster)
     try:
         yield DaskExecutor(client, retries)
