@@ -4,13 +4,14 @@ Dask cluster (``dask.distributed``: a local one of N processes, or any existing 
 Stages see one small interface, :class:`Executor`:
 
 * ``map(fn, items, **shared)`` — ``[fn(item, **shared) for item in items]``; each shared input is
-  sent once to every worker (scattered, broadcast), not once per task; results come back in order;
+  sent to the cluster once (as a task of its own, copied between workers), not once per task;
+  results come back in order;
 * ``share(value)`` / ``submit(fn, *args, **kwargs)`` / ``gather(futures)`` — a task graph for work
   whose tasks depend on each other (a sequential fold next to parallel per-layer tasks): in-process,
   ``submit`` runs the call at once and returns its value, so both executors give the same results.
 
-Tasks are retried on another worker when theirs dies (``retries``); shared inputs live on every
-worker (broadcast), so losing one loses none of them. Which executor runs a stage never changes its
+Tasks are retried on another worker when theirs dies (``retries``); a shared input lost with its
+workers is made again from its task. Which executor runs a stage never changes its
 result: the executor is an execution option, not a :class:`~curvslice.pipeline.Settings` field.
 """
 
@@ -67,8 +68,11 @@ class DaskExecutor:
         return self.gather(futures, progress)
 
     def share(self, value: Any) -> Any:
-        # wrapped in a list: scatter would otherwise split a list or dict into one future per element
-        return self.client.scatter([value], broadcast=True, hash=False)[0]
+        # A task that returns the value, not client.scatter: scattered data has no recipe, and the
+        # scheduler's memory manager drops broadcast replicas, so a killed worker can take the last copy
+        # and every task needing it with it. This one is sent to the scheduler once, copied from worker
+        # to worker as tasks need it, and re-run if every holder dies.
+        return self.client.submit(_value, value, pure=False, retries=self.retries)
 
     def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
         return self.client.submit(fn, *args, retries=self.retries, pure=False, priority=priority, **kwargs)
@@ -80,6 +84,10 @@ class DaskExecutor:
             for _ in as_completed(futures):
                 progress.update(1)
         return self.client.gather(list(futures))
+
+
+def _value(value: Any) -> Any:
+    return value
 
 
 Executor = InProcess | DaskExecutor

@@ -19,6 +19,8 @@ from curvslice.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 TEE = ROOT / "models" / "tee.stl"
 ARGS = ["--voxel", "2", "--stages", "toolpaths", "--quiet"]
+#: Task-name prefixes of the per-layer work (working surfaces, tool-paths).
+LAYER_TASKS = ("_contour_layer", "_prepare_layer", "_fold_layer", "_orient_layer")
 
 
 def _arrays(folder: Path) -> dict[str, np.ndarray]:
@@ -62,8 +64,9 @@ def test_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):
 @pytest.mark.dask_cluster
 def test_killing_a_worker_mid_run_still_gives_the_same_arrays(in_process, tmp_path):
     """``dask scheduler`` and two ``dask worker`` processes (no nanny: a killed worker stays dead) on
-    127.0.0.1; the slice runs through ``--scheduler``; once a worker is busy with tasks it is killed
-    (SIGKILL). The lost tasks are re-run on the survivor and the arrays are the in-process ones."""
+    127.0.0.1; the slice runs through ``--scheduler``; once a worker is busy with a per-layer task it is
+    killed (SIGKILL), with whatever shared inputs and results it held. The lost tasks are re-run on the
+    survivor and the arrays are the in-process ones."""
     from dask.distributed import Client
 
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -88,11 +91,12 @@ def test_killing_a_worker_mid_run_still_gives_the_same_arrays(in_process, tmp_pa
             procs.append(run)
             victim = None
             while victim is None and run.poll() is None:
-                busy = [a for a, tasks in client.processing().items() if tasks]
+                busy = [a for a, tasks in client.processing().items()
+                        if any(str(t).startswith(LAYER_TASKS) for t in tasks)]
                 if busy:
                     victim = client.scheduler_info()["workers"][busy[0]]["name"]
                 time.sleep(0.02)
-            assert victim is not None, "the slice ended before any task reached a worker"
+            assert victim is not None, "the slice ended before any per-layer task reached a worker"
             workers[int(victim[1:])].send_signal(signal.SIGKILL)
             assert run.wait(timeout=120) == 0
             assert len(client.scheduler_info()["workers"]) == 1  # the killed worker did not come back
