@@ -17,6 +17,7 @@ result: the executor is an execution option, not a :class:`~curvslice.pipeline.S
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any
@@ -72,7 +73,9 @@ class DaskExecutor:
         # scheduler's memory manager drops broadcast replicas, so a killed worker can take the last copy
         # and every task needing it with it. This one is sent to the scheduler once, copied from worker
         # to worker as tasks need it, and re-run if every holder dies.
-        return self.client.submit(_value, value, pure=False, retries=self.retries)
+        with warnings.catch_warnings():  # Dask's hint to scatter large objects instead: see above
+            warnings.filterwarnings("ignore", message="Large object of size", category=UserWarning)
+            return self.client.submit(_value, value, pure=False, retries=self.retries)
 
     def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
         return self.client.submit(fn, *args, retries=self.retries, pure=False, priority=priority, **kwargs)
