@@ -74,7 +74,7 @@ class DaskExecutor:
         # and every task needing it with it. This one is sent to the scheduler once, copied from worker
         # to worker as tasks need it, and re-run if every holder dies.
         with warnings.catch_warnings():  # Dask's hint to scatter large objects instead: see above
-            warnings.filterwarnings("ignore", message="Large object of size", category=UserWarning)
+            warnings.filterwarnings("ignore", message="Sending large graph", category=UserWarning)
             return self.client.submit(_value, value, pure=False, retries=self.retries)
 
     def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
