@@ -36,6 +36,7 @@ from tqdm import tqdm
 from curvslice import __version__
 from curvslice.convex_front import GROW_EPS, PEEL_EPS
 from curvslice.errors import CurvsliceError
+from curvslice.executors import Executor, InProcess
 from curvslice.growing_field import METHODS, growing_field
 from curvslice.outdir import atomic_folder
 from curvslice.peeling_field import peeling_field
@@ -194,12 +195,14 @@ class RobotResult:
 
 @dataclass
 class Context:
-    """What a stage function gets: the model, the settings, the earlier results, and a progress bar."""
+    """What a stage function gets: the model, the settings, the earlier results, a progress bar, and
+    the executor its per-layer tasks run on (:mod:`curvslice.executors`; never changes a result)."""
 
     model: str | Path | trimesh.Trimesh
     settings: Settings
     results: dict[str, Any]
     quiet: bool = True
+    executor: Executor = field(default_factory=InProcess)
 
     def bar(self, desc: str, total: int, unit: str = "voxel") -> tqdm:
         return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, leave=False, disable=self.quiet,
@@ -281,7 +284,8 @@ def run_layers(ctx: Context) -> LayersResult:
     start = time.perf_counter()
     with ctx.bar("working surfaces", count, unit="layer") as bar:
         layers = extract_working_surfaces(fr.growing, grid.origin, grid.voxel_size, fr.solid,
-                                          layer_height=s.layer_height, occupied=grid.occupied, progress=bar)
+                                          layer_height=s.layer_height, occupied=grid.occupied, progress=bar,
+                                          executor=ctx.executor)
     faces = [len(m.faces) for m in layers]
     report = {
         "count": len(layers), "layer_height_mm": s.layer_height or grid.voxel_size,
@@ -306,7 +310,7 @@ def run_toolpaths(ctx: Context) -> ToolpathsResult:
     settings = ctx.settings.toolpath_settings()
     start = time.perf_counter()
     with ctx.bar("tool-paths", len(layers), unit="layer") as bar:
-        tp = plan_toolpaths(layers, settings, progress=bar)
+        tp = plan_toolpaths(layers, settings, progress=bar, executor=ctx.executor)
     seconds = time.perf_counter() - start
     if not len(tp.positions):
         raise CurvsliceError(f"no tool-path fits on any of the {len(layers)} layers (every region is narrower than "
@@ -517,7 +521,8 @@ def settings_of(folder: str | Path) -> Settings:
 
 def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, until: str = "toolpaths",
         out: str | Path | None = None, resume: str | Path | None = None, force: bool = False, quiet: bool = True,
-        after: Callable[[Slice, Path], None] | None = None, redo: str | None = None) -> Slice:
+        after: Callable[[Slice, Path], None] | None = None, redo: str | None = None,
+        executor: Executor | None = None) -> Slice:
     """Run the stages up to and including ``until`` on ``model`` (a mesh file or a Trimesh).
 
     ``out``: write the output folder atomically (an existing one is replaced only with ``force``).
@@ -525,6 +530,8 @@ def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, u
     are copied, their results loaded); the first stage whose key differs and every later one run anew, and
     so do stage ``redo`` and every later one (to time or re-check a stage whose inputs did not change).
     ``after(slice, tmp)`` may add files to the folder before it becomes final (the CLI's preview).
+    ``executor``: where the stages' per-layer tasks run (default in-process; a Dask cluster from
+    :func:`curvslice.executors.open_executor`) -- the results are the same.
     """
     settings = settings or Settings()
     stage(until)  # an unknown name is an error before any work
@@ -537,7 +544,7 @@ def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, u
     protect = () if isinstance(model, trimesh.Trimesh) else (Path(model),)
     folder = atomic_folder(out, force=force, protect=protect) if out is not None else nullcontext(None)
     with folder as tmp:
-        result = _run_stages(model, settings, until, keys, old, tmp, quiet)
+        result = _run_stages(model, settings, until, keys, old, tmp, quiet, executor or InProcess())
         if tmp is not None:
             if after is not None:
                 after(result, tmp)
@@ -565,14 +572,14 @@ def _reusable(resume: str | Path, keys: dict[str, str], redo: str | None = None)
 
 
 def _run_stages(model, settings: Settings, until: str, keys: dict[str, str], old: dict[str, Any],
-                tmp: Path | None, quiet: bool) -> Slice:
+                tmp: Path | None, quiet: bool, executor: Executor) -> Slice:
     report: dict[str, Any] = {
         "curvslice": __version__, "model": str(Path(model).resolve()) if not isinstance(model, trimesh.Trimesh) else
         "<in-memory mesh>", "pipeline": PIPELINE_VERSION, "stages": [], "reused": [], "stage_keys": {},
         "parameters": asdict(settings),
         "timings_s": {},
     }
-    ctx = Context(model, settings, {}, quiet)
+    ctx = Context(model, settings, {}, quiet, executor)
     start = time.perf_counter()
     for stage in STAGES[:STAGE_NAMES.index(until) + 1]:
         if stage.name in old:

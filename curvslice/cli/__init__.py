@@ -21,7 +21,7 @@ from curvslice import __version__
 from curvslice.errors import CurvsliceError, missing_package
 
 #: Sub-command modules of ``curvslice.cli``, in the order ``--help`` lists them.
-COMMANDS = ("slice", "verify", "convert", "level", "drape", "view", "bench", "decompose", "workcell")
+COMMANDS = ("slice", "verify", "convert", "level", "drape", "view", "bench", "sweep", "decompose", "workcell")
 
 
 class _Parser(argparse.ArgumentParser):

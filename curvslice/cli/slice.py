@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.errors import CurvsliceError
+from curvslice.executors import open_executor
 from curvslice.pipeline import STAGE_NAMES, Settings, read_report, run as run_pipeline, settings_of
 from curvslice.validate import count, number
 
@@ -78,10 +79,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             help=m["help"] + (f", {unit}" if unit and not shown else "") + shown)
     p.add_argument("--no-verify", action="store_true", help="skip the independent re-check of the written folder "
                    "(`curvslice verify`); by default a failed check makes the exit status 1")
+    add_execution_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
     p.add_argument("--preview", action="store_true", help="also write preview.png (layers by print order, cut-away; tool-paths of one layer)")
     p.add_argument("--preview-layer", type=int, help="layer whose tool-paths preview.png shows (default: the middle one)")
     p.set_defaults(run=run)
+
+
+def add_execution_arguments(p: argparse.ArgumentParser) -> None:
+    """``--workers`` / ``--scheduler``: where the per-layer tasks run (never what they compute)."""
+    g = p.add_argument_group("execution (Dask; the results are the same)").add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, metavar="N", help="run per-layer tasks on a local Dask cluster of N "
+                   "single-threaded worker processes (default: in this process)")
+    g.add_argument("--scheduler", metavar="ADDRESS", help="run them on an existing Dask cluster, e.g. "
+                   "tcp://host:8786 (`dask scheduler` + `dask worker`, Kubernetes, SLURM...)")
 
 
 def _workcell_arg(text: str) -> str:
@@ -122,8 +133,9 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and settings.robot is not None and args.stages is None:
         until = "robot"  # asking for a robot on resume means planning it
     after = _preview(args) if args.preview else None
-    run_pipeline(model, settings, until=until, out=out, resume=args.resume, force=args.force, quiet=args.quiet,
-                 after=after)
+    with open_executor(args.workers, args.scheduler) as executor:
+        run_pipeline(model, settings, until=until, out=out, resume=args.resume, force=args.force, quiet=args.quiet,
+                     after=after, executor=executor)
     if not args.quiet:
         print(f"wrote {out}")
     if args.no_verify:
