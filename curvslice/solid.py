@@ -68,11 +68,31 @@ def read_mesh(path: str | Path) -> trimesh.Trimesh:
     return loaded
 
 
+def _without_internal_walls(faces: np.ndarray) -> tuple[np.ndarray, int]:
+    """Faces to keep: of triangles on the same three vertices, pairs of opposite winding cancel (the wall
+    where two touching bodies meet lies inside their union) and one of each same-winding duplicate stays.
+    Returns the keep mask and the number of wall faces dropped."""
+    order = np.argsort(faces, axis=1)
+    odd = ((order[:, 0] > order[:, 1]).astype(int) + (order[:, 0] > order[:, 2]) + (order[:, 1] > order[:, 2])) % 2
+    keep, walls = np.ones(len(faces), bool), 0
+    for group in trimesh.grouping.group_rows(np.sort(faces, axis=1)):
+        if len(group) < 2:
+            continue
+        even_g, odd_g = group[odd[group] == 0], group[odd[group] == 1]
+        pairs = min(len(even_g), len(odd_g))
+        keep[even_g[:pairs]] = keep[odd_g[:pairs]] = False
+        walls += 2 * pairs
+        rest = np.r_[even_g[pairs:], odd_g[pairs:]]
+        keep[rest[1:]] = False  # same-winding duplicates: one stays
+    return keep, walls
+
+
 def repair(mesh: trimesh.Trimesh, name: str = "mesh") -> tuple[trimesh.Trimesh, list[str]]:
     """Make ``mesh`` a closed, consistently oriented solid with positive volume.
 
-    Safe repairs only: merge coincident vertices, drop degenerate/duplicate faces and unused
-    vertices, fill holes bounded by 3 or 4 edges, unify winding, flip inside-out meshes.
+    Safe repairs only: merge coincident vertices, drop degenerate/duplicate faces, the internal walls
+    where touching bodies meet, and unused vertices, fill holes bounded by 3 or 4 edges, unify winding,
+    flip inside-out meshes.
     Raises CurvsliceError if the result is still open or has no volume.
     """
     repairs: list[str] = []
@@ -84,13 +104,13 @@ def repair(mesh: trimesh.Trimesh, name: str = "mesh") -> tuple[trimesh.Trimesh, 
     keep = m.nondegenerate_faces(height=1e-12)
     if not keep.all():
         m.update_faces(keep)
-    keep = m.unique_faces()
-    if len(keep) < len(m.faces):
-        mask = np.zeros(len(m.faces), bool)
-        mask[keep] = True
-        m.update_faces(mask)
-    if len(m.faces) < n_f:
-        repairs.append(f"removed {n_f - len(m.faces)} degenerate or duplicate faces")
+    keep, walls = _without_internal_walls(m.faces)
+    if not keep.all():
+        m.update_faces(keep)
+    if walls:
+        repairs.append(f"removed {walls} internal wall faces between touching bodies")
+    if len(m.faces) < n_f - walls:
+        repairs.append(f"removed {n_f - walls - len(m.faces)} degenerate or duplicate faces")
     m.remove_unreferenced_vertices()
     if len(m.faces) == 0:
         raise CurvsliceError(f"{name}: every face is degenerate (zero area); nothing to print")
@@ -100,11 +120,12 @@ def repair(mesh: trimesh.Trimesh, name: str = "mesh") -> tuple[trimesh.Trimesh, 
         if len(m.faces) > before:
             repairs.append(f"filled small holes with {len(m.faces) - before} faces")
     if not m.is_watertight:
-        edges = m.edges_sorted
-        groups = trimesh.grouping.group_rows(edges, require_count=1)
+        _, uses = np.unique(m.edges_sorted, axis=0, return_counts=True)
+        open_edges, shared = int((uses == 1).sum()), int((uses > 2).sum())
         raise CurvsliceError(
-            f"{name}: the mesh is not closed ({len(groups)} open boundary edges after filling small holes); "
-            "close it in a mesh editor (e.g. MeshLab 'Close Holes') and retry"
+            f"{name}: the mesh is not a closed solid after filling small holes ({open_edges} open boundary edges, "
+            f"{shared} edges shared by more than two triangles); close or clean it in a mesh editor (e.g. MeshLab "
+            "'Close Holes', 'Remove Non-Manifold Edges') and retry"
         )
     if not m.is_winding_consistent:
         trimesh.repair.fix_winding(m)

@@ -130,3 +130,19 @@ def test_unit_confusion_is_caught(tmp_path):
         load_solid(tmp_path / "metres.stl")
     solid, rep = load_solid(tmp_path / "metres.stl", scale=1000.0)
     assert solid.extents.max() == pytest.approx(60.0)
+
+
+def test_touching_bodies_lose_their_internal_wall(tmp_path):
+    """Two boxes sharing a face with the same triangles (an assembly export): the shared wall's two copies
+    have opposite winding and cancel, leaving one closed solid of the union's volume."""
+    a = trimesh.creation.box((10, 10, 10)).apply_translation((5, 0, 5))
+    b = trimesh.Trimesh(a.vertices * [-1, 1, 1] + [20, 0, 0], a.faces[:, ::-1], process=False)  # mirrored at x = 10
+    joined = trimesh.Trimesh(np.vstack([a.vertices, b.vertices]), np.vstack([a.faces, b.faces + len(a.vertices)]),
+                             process=False)
+    fixed, notes = repair(joined)
+    assert fixed.is_watertight and fixed.volume == pytest.approx(2000.0)
+    assert any("internal wall" in n for n in notes)
+    fin = trimesh.Trimesh(joined.vertices, np.vstack([joined.faces, [[0, 1, 2]]]), process=False)
+    fin.faces = fin.faces[np.r_[0:len(a.faces), len(a.faces) + 2:len(fin.faces)]]  # an open, non-manifold mess
+    with pytest.raises(CurvsliceError, match="open boundary edges.*shared by more than two"):
+        repair(fin)
