@@ -251,6 +251,10 @@ class Limits:
     acceleration: np.ndarray
     jerk: np.ndarray
 
+    def beyond(self, q: np.ndarray) -> np.ndarray:
+        """Rows of ``q`` (n, 6) outside the joint limits."""
+        return ((q < self.lower - 1e-9) | (q > self.upper + 1e-9)).any(axis=1)
+
     @classmethod
     def of(cls, robot: Robot, cell: Workcell) -> Limits:
         lo, hi = cell.limits(robot)
@@ -675,7 +679,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     safe_z, safe_q = z0.copy(), q0.copy()  # the last pose of each row known collision-free (the graph's first)
     free = branch >= 0
     pinned = np.zeros(len(q), bool)  # rows fixed after a collision
-    steps = iterations = checks = reverted = 0
+    steps = iterations = checks = reverted = beyond = 0
     for k in range(settings.collision_rounds + 1):
         if k < settings.collision_rounds and free.any():
             # later rounds re-settle only the rows near the ones just fixed, in a few steps
@@ -686,14 +690,15 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
             red.branch = branch
             steps += s
             iterations += it
-        if collides_for_layer is None or layer_of_row is None:
-            break
+        check_collisions = collides_for_layer is not None and layer_of_row is not None
         moved = np.flatnonzero(np.abs(q - safe_q).max(axis=1) > 1e-12)
         hit = np.zeros(len(q), bool)
-        for value in np.unique(layer_of_row[moved]):
+        hit[moved] = limits.beyond(q[moved])  # the joint limits are hard: the filter only penalizes them
+        beyond += int(hit.sum())
+        for value in np.unique(layer_of_row[moved]) if check_collisions else ():
             rows = moved[layer_of_row[moved] == value]
             collides = collides_for_layer(int(value))
-            hit[rows] = collides(q[rows]) if collides is not None else False
+            hit[rows] |= collides(q[rows]) if collides is not None else False
             checks += len(rows)
         ok = moved[~hit[moved]]
         safe_z[ok], safe_q[ok] = z[ok], q[ok]
@@ -701,14 +706,14 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
             break
         bad = np.flatnonzero(hit)
         reverted += len(bad)
-        if k < settings.collision_rounds:  # half-way back to the safe pose when that is free (one more check)
+        if k < settings.collision_rounds:  # half-way back to the safe pose when that is valid (one more check)
             mid_z = (z[bad] + safe_z[bad]) / 2
             mid_q, good = red.joints(mid_z, bad, q[bad])
-            collides_mid = np.zeros(len(bad), bool)
-            for value in np.unique(layer_of_row[bad]):
+            collides_mid = limits.beyond(mid_q)
+            for value in np.unique(layer_of_row[bad]) if check_collisions else ():
                 sel = layer_of_row[bad] == value
                 collides = collides_for_layer(int(value))
-                collides_mid[sel] = collides(mid_q[sel]) if collides is not None else False
+                collides_mid[sel] |= collides(mid_q[sel]) if collides is not None else False
                 checks += int(sel.sum())
             use = good & ~collides_mid
             safe_z[bad[use]], safe_q[bad[use]] = mid_z[use], mid_q[use]
@@ -740,7 +745,8 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
         "time_scaling_added_pct": round(100 * scaled_added / print_steps, 3) if print_steps > 0 else 0.0,
         "moves_s": round(moves, 3),
         "collision_checks": checks,
-        "rows_reverted_for_collision": reverted,
+        "rows_reverted_for_collision": reverted - beyond,
+        "rows_reverted_for_joint_limits": beyond,
         "rows_fixed": int((red.branch < 0).sum()),
         "rows_tilted": int((tilted > 1e-6).sum()),
         "max_tilt_deg": round(float(np.degrees(tilted.max())), 3) if len(tilted) else 0.0,
