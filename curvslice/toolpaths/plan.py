@@ -139,7 +139,7 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
         r.top = float(bands.top[r.above])
     # the narrowest bead (fit_beads), in widths: the layer thickness (0.8 w at the default path width,
     # voxel / 0.8 of §3.6, on layers a voxel thick), which decides which loops are thin (thin_rise)
-    floor = max(float(np.median(min_bead(v))) / width, BEAD_MIN) if min_bead is not None else BEAD_MIN
+    floor = max(float(np.median(min_bead(v[::max(1, len(v) // 1000)]))) / width, BEAD_MIN) if min_bead is not None else BEAD_MIN
     extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor)
     rings += extra
     spirals, regions, splices, failed = connected_spirals(rings, width, start, floor)

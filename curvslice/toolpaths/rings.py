@@ -52,14 +52,17 @@ class Ring:
         return 2.0 * area / max(self.length, 1e-300)
 
     @property
+    def round(self) -> bool:
+        """Isoperimetric ratio 4π·area / length² of at least ``ROUND_RING``."""
+        return 2.0 * np.pi * self.breadth / max(self.length, 1e-300) >= ROUND_RING
+
+    @property
     def rise(self) -> float:
         """How far the inside reaches from the ring: the distance's rise above it (``top − level``)
-        on a round ring (``ROUND_RING``), half the mean breadth on an elongated one, whose rise may
-        come from one bulge."""
+        on a round ring, half the mean breadth on an elongated one, whose rise may come from one
+        bulge."""
         rise = self.top - self.level
-        if 2.0 * np.pi * self.breadth / max(self.length, 1e-300) >= ROUND_RING:  # 4π·area / length²
-            return rise
-        return min(rise, 0.5 * self.breadth)
+        return rise if self.round else min(rise, 0.5 * self.breadth)
 
 
 def thin_rise(floor: float, width: float) -> float:
@@ -267,7 +270,7 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
             if not dot and r.rise < thin_rise(floor, width):
                 if not around or rise >= (1.5 * floor - 0.5) * width:
                     lines.append(loop_centre_line(r.points))
-            elif around and dot and b >= 2 and rise <= reach:
+            elif around and dot and (b >= 2 or around[0].round) and rise <= reach:
                 continue
             else:
                 extra.append(Ring(r.level, r.points, c, next_comp + r.above, float(bands.top[c])))
