@@ -270,7 +270,7 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
             if not dot and r.rise < thin_rise(floor, width):
                 if not around or rise >= (1.5 * floor - 0.5) * width:
                     lines.append(loop_centre_line(r.points))
-            elif around and dot and (b >= 2 or around[0].round) and rise <= reach:
+            elif around and dot and b >= 2 and rise <= reach:
                 continue
             else:
                 extra.append(Ring(r.level, r.points, c, next_comp + r.above, float(bands.top[c])))
