@@ -135,14 +135,18 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     levels = np.arange(FIRST_LEVEL * width, top, width)
     rings, bands = contour_rings(v, f, dist, levels)
     rings = prune_islands(rings, bands.top, width)
+
+    def floor_of(points: np.ndarray) -> float:
+        """The narrowest bead along a contour (fit_beads), in widths: the local layer thickness
+        (0.8 w at the default path width, voxel / 0.8 of §3.6, on layers a voxel thick), which
+        decides whether the contour is a thin loop (thin_rise)."""
+        return max(float(np.median(min_bead(points))) / width, BEAD_MIN) if min_bead is not None else BEAD_MIN
+
     for r in rings:
-        r.top = float(bands.top[r.above])
-    # the narrowest bead (fit_beads), in widths: the layer thickness (0.8 w at the default path width,
-    # voxel / 0.8 of §3.6, on layers a voxel thick), which decides which loops are thin (thin_rise)
-    floor = max(float(np.median(min_bead(v[::max(1, len(v) // 1000)]))) / width, BEAD_MIN) if min_bead is not None else BEAD_MIN
-    extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor)
+        r.top, r.floor = float(bands.top[r.above]), floor_of(r.points)
+    extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor_of)
     rings += extra
-    spirals, regions, splices, failed = connected_spirals(rings, width, start, floor)
+    spirals, regions, splices, failed = connected_spirals(rings, width, start)
     out = LayerPaths(pieces=spirals + lines, rings=len(rings), regions=regions + len(lines) + len(thin),
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))
