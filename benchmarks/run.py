@@ -273,7 +273,8 @@ def _robot(rec: Recorder, ctx, target: int, counts: dict) -> None:
     import dataclasses
 
     from curvslice.kinematics import load_robot
-    from curvslice.motion import circular_joints, ladder, segment_speeds, shortest_path, step_times
+    from curvslice.ladder import circular_joints, ladder, shortest_path
+    from curvslice.motion import segment_speeds, step_times
     from curvslice.pipeline import stage
     from curvslice.workcell import load_workcell
 

@@ -1,16 +1,9 @@
-"""Pose-continuous motion: ladder graph and multi-source shortest path (§3.5.3, §4.3.1, Fig. 4.2).
+"""Pose-continuous motion of a print (§3.5.3, §4.3.1, Fig. 3.11b): per layer, the shortest path
+through the ladder graph (:mod:`curvslice.ladder`), unwinding of the circular joints, timestamps,
+and the joint trajectory of the whole print with its report figures.
 
-Each waypoint (c_j, t_j) gives a rung of nodes: every analytic IK solution of p rotations about the
-nozzle axis (Eq. 4.3), inside the joint limits and free of collision. An edge joins consecutive
-rungs when ‖Δq‖∞/Δt ≤ ξ (Eq. 4.4, Δt = ‖c_{j+1} − c_j‖/v̄) with weight ‖Δq‖₁ (Eq. 3.4) or the
-weighted quadratic Δqᵀ W Δq (Eq. 4.5); distances are circular on joints that can turn a full
-revolution ("winding effect", §4.3.1). The graph is a DAG, so the multi-source Dijkstra of the
-thesis (all first-rung nodes as sources) is computed rung by rung, vectorized over node pairs.
 Where no node of a rung is reachable the motion splits there and a new one starts (Fig. 3.11b);
 when a layer needs splits, p is doubled and the search repeated while that removes splits (§4.3.1).
-Collisions are checked lazily: only nodes on the current best path are tested; where one collides,
-the other nodes of its IK branch in that rung are tested too and the search resumes from the
-earliest such rung. The result equals checking every node first (tested against that).
 """
 
 from __future__ import annotations
@@ -20,23 +13,10 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import dijkstra
 
-from curvslice.kinematics import Robot, ik
-from curvslice.workcell import Workcell, flange_poses
-
-TWO_PI = 2 * np.pi
-
-
-@dataclass
-class LadderPath:
-    """A shortest path through a ladder: node index per rung (-1 on empty rungs), segment id per
-    rung (-1 on empty rungs; a new id after each disconnection), and the total edge cost."""
-
-    node: np.ndarray
-    segment: np.ndarray
-    cost: float
+from curvslice.kinematics import Robot
+from curvslice.ladder import TWO_PI, circular_joints, deviate_axes, ladder, shortest_path
+from curvslice.workcell import Workcell
 
 
 @dataclass
@@ -52,255 +32,6 @@ class Motion:
     winding_splits: list[int]  # waypoint indices where a joint would leave its range by winding
     cost: float  # Eq. 3.4 (or 4.6) summed over the segments
     collision_checks: int
-
-
-def circular_joints(lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-    """Joints whose range exceeds one revolution: their distances are measured on the circle."""
-    return (np.asarray(upper) - np.asarray(lower)) > TWO_PI + 1e-9
-
-
-def edge_weights(
-    qa: np.ndarray,
-    qb: np.ndarray,
-    dt: float,
-    max_speed: float,
-    circular: np.ndarray,
-    cost: str = "l1",
-    weights: np.ndarray | None = None,
-) -> np.ndarray:
-    """(Ka, Kb) edge weights between two rungs; ``inf`` where ‖Δq‖∞/Δt > ξ (Eq. 4.4) or a node is
-    absent (NaN). ``cost`` = "l1" (Eq. 3.4, weighted by ``weights``) or "quadratic" (Eq. 4.5)."""
-    total, largest = _joint_costs(lambda j: qb[None, :, j] - qa[:, None, j], circular, cost, weights)
-    total[~(largest <= max_speed * dt)] = np.inf  # NaN nodes compare False -> excluded
-    return total
-
-
-def _joint_costs(
-    diff: Callable[[int], np.ndarray], circular: np.ndarray, cost: str, weights: np.ndarray | None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Edge cost (Eq. 3.4 or 4.5) and ‖Δq‖∞ from per-joint differences ``diff(j)``, one joint at
-    a time (keeps the work in cache); circular joints take the short way round."""
-    total = largest = None
-    for j in range(len(circular)):
-        d = np.abs(diff(j))
-        if circular[j]:
-            np.minimum(d, TWO_PI - d, out=d)
-        largest = d.copy() if largest is None else np.maximum(largest, d, out=largest)
-        if cost != "l1":
-            d *= d
-        d *= 1.0 if weights is None else float(weights[j])
-        total = d if total is None else np.add(total, d, out=total)
-    return total, largest
-
-
-def sparse_edges(
-    qa: np.ndarray,
-    qb: np.ndarray,
-    dt: float,
-    max_speed: float,
-    circular: np.ndarray,
-    cost: str = "l1",
-    weights: np.ndarray | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The finite entries of :func:`edge_weights` as (ia, ib, w), found without the dense matrix:
-    candidates are the pairs whose most discriminating joint differs by at most ξΔt (a sorted-window
-    search), then every joint is tested exactly as in :func:`edge_weights` (same arithmetic, same result)."""
-    limit = max_speed * dt
-    ka = np.flatnonzero(~np.isnan(qa[:, 0]))
-    kb = np.flatnonzero(~np.isnan(qb[:, 0]))
-    if len(ka) == 0 or len(kb) == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    if limit >= 1.0:  # wide windows: the dense matrix is as cheap
-        w = edge_weights(qa, qb, dt, max_speed, circular, cost, weights)
-        ia, ib = np.nonzero(np.isfinite(w))
-        return ia, ib, w[ia, ib]
-    # window on the joint with the fewest target nodes within ξΔt of each other (joint 1 is
-    # useless when every rotation θ leaves the wrist in place)
-    v = np.sort(qb[kb], axis=0)
-    crowd = [(np.searchsorted(v[:, j], v[:, j] + limit, "right") - np.searchsorted(v[:, j], v[:, j] - limit, "left")).sum()
-             for j in range(v.shape[1])]
-    j0 = int(np.argmin(crowd))
-    b0 = qb[kb, j0]
-    copies = (b0, b0 + TWO_PI, b0 - TWO_PI) if circular[j0] else (b0,)
-    values = np.concatenate(copies)
-    owner = np.tile(np.arange(len(kb)), len(copies))
-    order = np.argsort(values, kind="stable")
-    sorted_values = values[order]
-    a0 = qa[ka, j0]
-    lo = np.searchsorted(sorted_values, a0 - limit, "left")
-    hi = np.searchsorted(sorted_values, a0 + limit, "right")
-    counts = hi - lo
-    ia = np.repeat(np.arange(len(ka)), counts)
-    pos = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts) + np.repeat(lo, counts)
-    ib = owner[order[pos]]
-    ia, ib = ka[ia], kb[ib]
-    total, largest = _joint_costs(lambda j: qb[ib, j] - qa[ia, j], circular, cost, weights)
-    keep = largest <= limit
-    return ia[keep], ib[keep], total[keep]
-
-
-def _relax(
-    valid: np.ndarray,
-    best: np.ndarray,
-    pred: np.ndarray,
-    start: int,
-    edges: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]],
-) -> None:
-    """Fill ``best``/``pred`` for rungs ``start..m-1`` (rung start-1 already final)."""
-    m = len(valid)
-    for i in range(max(start, 0), m):
-        best[i] = np.inf
-        pred[i] = -1
-        if i > 0 and np.isfinite(best[i - 1]).any():
-            ia, ib, w = edges(i - 1)
-            total = best[i - 1][ia] + w
-            ok = np.isfinite(total) & valid[i][ib]
-            ia, ib, total = ia[ok], ib[ok], total[ok]
-            if len(ib):
-                order = np.lexsort((ia, total, ib))  # per target: least cost, then first source
-                first = order[np.r_[True, ib[order][1:] != ib[order][:-1]]]
-                best[i][ib[first]] = total[first]
-                pred[i][ib[first]] = ia[first]
-                continue
-        best[i] = np.where(valid[i], 0.0, np.inf)  # sources: a new motion starts here
-
-
-def _backtrack(best: np.ndarray, pred: np.ndarray) -> LadderPath:
-    m = len(best)
-    node = np.full(m, -1)
-    i = m - 1
-    cost = 0.0
-    while i >= 0:
-        if not np.isfinite(best[i]).any():
-            i -= 1
-            continue
-        k = int(np.argmin(best[i]))
-        cost += float(best[i][k])
-        while True:
-            node[i] = k
-            if pred[i][k] < 0:
-                break
-            k = int(pred[i][k])
-            i -= 1
-        i -= 1
-    starts = (node >= 0) & np.r_[True, pred[np.arange(1, m), np.maximum(node[1:], 0)] < 0]
-    segment = np.where(node >= 0, np.cumsum(starts) - 1, -1)
-    return LadderPath(node, segment, cost)
-
-
-def shortest_path(
-    q: np.ndarray,
-    valid: np.ndarray,
-    dt: np.ndarray,
-    max_speed: float,
-    circular: np.ndarray,
-    cost: str = "l1",
-    weights: np.ndarray | None = None,
-    node_ok: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-    group: np.ndarray | None = None,
-) -> tuple[LadderPath, np.ndarray, int]:
-    """Multi-source shortest path through a ladder (m rungs, K nodes, 6 joints), rung by rung.
-
-    ``q`` (m, K, 6), ``valid`` (m, K), ``dt`` (m-1,) seconds. ``node_ok(rungs, nodes)`` (optional)
-    returns which of the given nodes are usable (e.g. collision-free); it is called lazily on path
-    nodes; where one is rejected, the other nodes of its ``group`` (labels (K,), e.g. the IK branch;
-    default: the whole rung) in that rung are asked too. Returns the path, the final validity mask, and how many nodes
-    ``node_ok`` was asked about.
-    """
-    q = np.where(valid[..., None], q, np.nan)
-    valid = valid.copy()
-    m, K = valid.shape
-    best = np.full((m, K), np.inf)
-    pred = np.full((m, K), -1)
-    cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-
-    def edges(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        # edges only lose endpoints between passes (_relax masks invalid ones), so keep them
-        if i not in cache:
-            ia, ib, w = sparse_edges(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)
-            cache[i] = (ia.astype(np.int32), ib.astype(np.int32), w)
-        return cache[i]
-
-    _relax(valid, best, pred, 0, edges)
-    checked = np.zeros((m, K), bool)
-    asked = 0
-    while True:
-        path = _backtrack(best, pred)
-        if node_ok is None:
-            return path, valid, asked
-        rungs = np.flatnonzero(path.node >= 0)
-        rungs = rungs[~checked[rungs, path.node[rungs]]]
-        if len(rungs) == 0:
-            return path, valid, asked
-        ok = node_ok(rungs, path.node[rungs])
-        asked += len(rungs)
-        checked[rungs, path.node[rungs]] = True
-        bad = rungs[~ok]
-        if len(bad) == 0:
-            continue
-        same = np.ones((len(bad), K), bool) if group is None else group[None, :] == group[path.node[bad]][:, None]
-        rr, kk = np.nonzero(valid[bad] & ~checked[bad] & same)
-        rr = bad[rr]
-        if len(rr):
-            ok = node_ok(rr, kk)
-            asked += len(rr)
-            checked[rr, kk] = True
-            valid[rr[~ok], kk[~ok]] = False
-        valid[bad, path.node[bad]] = False
-        q[~valid] = np.nan
-        _relax(valid, best, pred, int(bad.min()), edges)
-
-
-def reference_shortest_path(
-    q: np.ndarray,
-    valid: np.ndarray,
-    dt: np.ndarray,
-    max_speed: float,
-    circular: np.ndarray,
-    cost: str = "l1",
-    weights: np.ndarray | None = None,
-) -> LadderPath:
-    """The same problem solved by scipy.sparse.csgraph.dijkstra on the explicit graph (tests only):
-    multi-source from the first reachable rung, a new search after every disconnection."""
-    q = np.where(valid[..., None], q, np.nan)
-    m, K = valid.shape
-    rows, cols, vals = [], [], []
-    for i in range(m - 1):
-        w = edge_weights(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)
-        a, b = np.nonzero(np.isfinite(w))
-        rows.append(i * K + a)
-        cols.append((i + 1) * K + b)
-        vals.append(w[a, b] + 1e-300)  # keep zero-weight edges as edges
-    graph = csr_matrix(
-        (np.concatenate(vals) if vals else [], (np.concatenate(rows) if rows else [], np.concatenate(cols) if cols else [])),
-        shape=(m * K, m * K),
-    )
-    node = np.full(m, -1)
-    segment = np.full(m, -1)
-    total = 0.0
-    seg = 0
-    i = 0
-    while i < m:
-        if not valid[i].any():
-            i += 1
-            continue
-        sources = i * K + np.flatnonzero(valid[i])
-        dist, predecessors, _ = dijkstra(graph, directed=True, indices=sources, min_only=True, return_predecessors=True)
-        dist = dist.reshape(m, K)
-        reach = np.isfinite(dist).any(axis=1)
-        end = i
-        while end + 1 < m and reach[end + 1]:
-            end += 1
-        k = int(np.argmin(dist[end]))
-        total += float(dist[end, k])
-        v = end * K + k
-        while v >= 0:
-            node[v // K] = v % K
-            segment[v // K] = seg
-            v = int(predecessors[v]) if v // K > i else -1
-        seg += 1
-        i = end + 1
-    return LadderPath(node, segment, total)
 
 
 def step_times(
@@ -320,75 +51,6 @@ def step_times(
         turn = np.arccos(np.clip(np.einsum("ij,ij->i", n[1:], n[:-1]), -1.0, 1.0))
         dt = np.maximum(dt, turn / turn_speed)
     return np.maximum(dt, min_step)
-
-
-def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, p: int) -> tuple[np.ndarray, np.ndarray]:
-    """Rungs of IK nodes: q (m, 8p, 6) and valid (m, 8p) (solution exists and is inside the limits).
-
-    Joints with more than one revolution of range keep angles in [-π, π); the others take the
-    representative inside their limits (none: the node is dropped).
-    """
-    m = len(positions)
-    T = flange_poses(cell, positions, normals, p).reshape(-1, 4, 4)
-    q, ok = ik(robot, T)
-    lo, hi = cell.limits(robot)
-    circ = circular_joints(lo, hi)
-    rep = lo + (q - lo) % TWO_PI
-    q = np.where(circ, q, rep)
-    ok &= ((q >= lo - 1e-12) & (q <= hi + 1e-12)).all(axis=-1)
-    return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
-
-
-def tilted_axes(axis: np.ndarray, angle: float, azimuths: int = 8) -> np.ndarray:
-    """Unit axes at ``angle`` (rad) from the unit ``axis``, ``azimuths`` of them around it, ordered
-    from the one tilted towards the vertical +Z (first) to the one tilted away from it (last)."""
-    a = np.asarray(axis, float)
-    up = np.array([0.0, 0.0, 1.0]) - a[2] * a  # +Z without its component along the axis
-    if np.linalg.norm(up) < 1e-9:
-        up = np.array([1.0, 0.0, 0.0]) - a[0] * a
-    u = up / np.linalg.norm(up)
-    v = np.cross(a, u)
-    phi = 2 * np.pi * np.arange(azimuths) / azimuths
-    phi = phi[np.argsort(np.minimum(phi, 2 * np.pi - phi), kind="stable")]  # 0, +45°, -45°, ...
-    d = np.cos(phi)[:, None] * u + np.sin(phi)[:, None] * v
-    return np.cos(angle) * a + np.sin(angle) * d
-
-
-def deviate_axes(
-    robot: Robot,
-    cell: Workcell,
-    positions: np.ndarray,
-    normals: np.ndarray,
-    stuck: np.ndarray,
-    collides: Callable[[np.ndarray], np.ndarray] | None,
-    p: int,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Tool axes for waypoints with no usable pose (``stuck``): keep the contact point c_j and tilt
-    t_j in rings of ``cell.axis_deviation_step`` up to ``cell.max_axis_deviation`` (towards the
-    vertical first) until some rotation θ and IK branch is inside the limits and collision-free.
-
-    A bounded deviation of an orientation the thesis itself low-passes (§3.5.2). Returns the axes
-    (m, 3) (unchanged where not stuck or where no tilt within the bound helps) and the deviation
-    (m,) rad (0 where unchanged)."""
-    axes = np.asarray(normals, float) / np.linalg.norm(normals, axis=1, keepdims=True)
-    deviation = np.zeros(len(axes))
-    angles = np.arange(1, int(np.floor(cell.max_axis_deviation / cell.axis_deviation_step + 1e-9)) + 1) \
-        * cell.axis_deviation_step
-    for j in np.flatnonzero(stuck):
-        for angle in angles:
-            found = None
-            for cand in tilted_axes(axes[j], angle):
-                if cand[2] <= -1 + 1e-9:
-                    continue
-                q, ok = ladder(robot, cell, positions[j][None], cand[None], p)
-                nodes = q[0, ok[0]]
-                if len(nodes) and (collides is None or not collides(nodes).all()):
-                    found = cand
-                    break
-            if found is not None:
-                axes[j], deviation[j] = found / np.linalg.norm(found), angle
-                break
-    return axes, deviation
 
 
 def unwind(q: np.ndarray, segment: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, list[int]]:
@@ -424,6 +86,21 @@ def unwind(q: np.ndarray, segment: np.ndarray, lower: np.ndarray, upper: np.ndar
     return out, sorted(splits)
 
 
+#: rungs before a split whose rotation sampling is refined with it (§4.3.1)
+REFINE_WINDOW = 8
+#: the smallest p a ladder starts from before halving stops (Eq. 4.3)
+MIN_START_ROTATIONS = 8
+
+
+def start_rotations(rotations: int) -> int:
+    """p a ladder starts from: ``rotations`` halved while it stays even and ≥ MIN_START_ROTATIONS, so
+    that doubling it per rung reaches ``rotations`` again (30 -> 15)."""
+    p = int(rotations)
+    while p % 2 == 0 and p // 2 >= MIN_START_ROTATIONS:
+        p //= 2
+    return p
+
+
 def plan_motion(
     robot: Robot,
     cell: Workcell,
@@ -434,36 +111,84 @@ def plan_motion(
     cost: str = "l1",
     weights: np.ndarray | None = None,
     max_rotations: int | None = None,
+    dense: np.ndarray | None = None,
 ) -> Motion:
     """Joint trajectory for one waypoint sequence (a layer's tool-paths, in print order).
 
-    ``dt`` (m-1,) are the step times; ``collides(q) -> bool`` marks poses in collision. p starts at
-    ``cell.rotations`` and doubles while the motion needs splits and doubling reduces them, up to
-    ``max_rotations`` (default 4 p); the ladder with the fewest breaks is kept.
+    ``dt`` (m-1,) are the step times; ``collides(q) -> bool`` marks poses in collision. Every rung
+    starts with p = :func:`start_rotations` of ``cell.rotations``; while the motion has breaks (splits
+    or skipped waypoints) p is doubled, up to ``max_rotations`` (default 4 × ``cell.rotations``), on
+    the rungs of the breaks only (a skipped rung, and the ``REFINE_WINDOW`` rungs up to a split) and
+    the search repeated while that removes breaks (§4.3.1); the ladder with the fewest breaks is kept.
+    θ samples nest (those of p are every other one of 2p), so collision answers carry over. Rungs
+    marked ``dense`` (m,) bool are refined with every break (e.g. those around a deviated tool axis).
     """
     positions = np.asarray(positions, float)
     normals = np.asarray(normals, float)
+    m = len(positions)
     lo, hi = cell.limits(robot)
     circ = circular_joints(lo, hi)
-    p = cell.rotations
+    p = start_rotations(cell.rotations)
     limit = max_rotations or 4 * cell.rotations
+    level = np.full(m, p)  # p of each rung
+    q, solved = ladder(robot, cell, positions, normals, p)
+    solved_at = np.full(m, p)  # p of the IK solutions held for each rung
+    known = np.zeros((m, 8 * p), np.int8)  # collision answers: 0 unknown, 1 free, -1 colliding
     asked_total = 0
-    best = None
+    best, whole = None, False
+    edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # rung i -> its edges to rung i+1
     while True:
-        q, valid = ladder(robot, cell, positions, normals, p)
-        node_ok = None if collides is None else (lambda r, k: ~collides(q[r, k]))  # noqa: E731
+        redo = np.flatnonzero(solved_at < level)  # refined rungs: IK at the finer θ samples
+        if len(redo):
+            q[redo], solved[redo] = ladder(robot, cell, positions[redo], normals[redo], p)
+            solved_at[redo] = p
+        theta = np.arange(8 * p) // 8
+        valid = solved & (theta[None, :] % (p // level)[:, None] == 0)
+
+        def node_ok(r: np.ndarray, k: np.ndarray) -> np.ndarray:
+            nonlocal asked_total
+            ans = known[r, k]
+            todo = np.flatnonzero(ans == 0)
+            if len(todo):
+                ans[todo] = np.where(collides(q[r[todo], k[todo]]), -1, 1)
+                known[r[todo], k[todo]] = ans[todo]
+                asked_total += len(todo)
+            return ans > 0
+
         branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
-        path, _, asked = shortest_path(q, valid, dt, cell.max_joint_speed, circ, cost, weights, node_ok, branch)
-        asked_total += asked
+        path, _, _ = shortest_path(q, valid & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
+                                   None if collides is None else node_ok, branch, edges)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
-        breaks = int((np.diff(path.segment[path.segment >= 0]) != 0).sum() + (path.node < 0).sum())
+        rows = np.flatnonzero(path.node >= 0)
+        split_rows = rows[1:][np.diff(path.segment[rows]) != 0]
+        breaks = len(split_rows) + m - len(rows)
         if best is None or breaks < best[0]:
-            best = (breaks, p, q, valid, path)
+            best = (breaks, int(level.max()), q.copy(), valid, path)
+        elif not whole and (level < p).any():
+            whole = True  # refining the breaks' rungs alone did not help: refine every rung at this p
+            level[:] = p
+            edges = {}
+            continue
         else:
             break  # a denser ladder did not help: the breaks come from the path itself (§4.3.1)
         if breaks == 0 or p * 2 > limit:
             break
+        refine = path.node < 0 if dense is None else (path.node < 0) | dense
+        for r in split_rows:
+            refine[max(r - REFINE_WINDOW, 0) : r + 1] = True
+        # θ samples nest: the nodes of p are the even ones of 2p (same IK branch order)
+        finer = np.full((m, 2 * p, 8, 6), np.nan)
+        finer[:, ::2] = q.reshape(m, p, 8, 6)
+        finer_ok = np.zeros((m, 2 * p, 8), bool)
+        finer_ok[:, ::2] = solved.reshape(m, p, 8)
+        finer_known = np.zeros((m, 2 * p, 8), np.int8)
+        finer_known[:, ::2] = known.reshape(m, p, 8)
         p *= 2
+        q, solved, known = finer.reshape(m, 8 * p, 6), finer_ok.reshape(m, 8 * p), finer_known.reshape(m, 8 * p)
+        level[refine], whole = p, False
+        # edges between two rungs that keep their nodes carry over, renumbered (node s·8+b -> 2s·8+b)
+        edges = {i: (2 * ia - ia % 8, 2 * ib - ib % 8, w) for i, (ia, ib, w) in edges.items()
+                 if not (refine[i] or refine[i + 1])}
     _, p, q, valid, path = best
     solutions = valid.sum(axis=1)
     starts = np.flatnonzero(np.r_[False, np.diff(path.segment[path.segment >= 0]) != 0])
@@ -553,7 +278,8 @@ def plan_print(
         while True:
             dt = step_times(positions[rows], speed, cell.min_step_time, axes, cell.tool_turn_speed) \
                 if len(rows) > 1 else np.zeros(0)
-            motion = plan_motion(robot, cell, positions[rows], axes, dt, collides, cost, None, max_rotations)
+            near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
+            motion = plan_motion(robot, cell, positions[rows], axes, dt, collides, cost, None, max_rotations, near)
             checks += motion.collision_checks
             stuck = (motion.segment < 0) & ~tried
             if not stuck.any() or cell.max_axis_deviation <= 0:

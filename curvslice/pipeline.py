@@ -36,11 +36,13 @@ from tqdm import tqdm
 from curvslice import __version__
 from curvslice.convex_front import GROW_EPS, PEEL_EPS
 from curvslice.errors import CurvsliceError
+from curvslice.executors import Executor, InProcess
 from curvslice.growing_field import METHODS, growing_field
 from curvslice.outdir import atomic_folder
 from curvslice.peeling_field import peeling_field
 from curvslice.platform import DEFAULT_MARGIN, DEFAULT_THICKNESS, disc_platform, load_platform
 from curvslice.solid import load_solid
+from curvslice.validate import check_number
 from curvslice.toolpaths import Toolpaths, ToolpathSettings, plan_toolpaths, save_toolpaths
 from curvslice.verify.toolpaths import layer_cover
 from curvslice.voxelize import VoxelGrid, voxelize
@@ -63,40 +65,74 @@ class Settings:
 
     # placement of the model (the field stage loads it)
     up: str = setting("z", "model axis that points up", "field", choices=("x", "-x", "y", "-y", "z", "-z"))
-    size: float | None = setting(None, "scale uniformly so the longest extent is SIZE", "field", "mm")
-    scale: float = setting(1.0, "uniform scale factor (ignored with size)", "field")
+    size: float | None = setting(None, "scale uniformly so the longest extent is SIZE", "field", "mm",
+                                  lo=0.01, hi=10_000.0)
+    scale: float = setting(1.0, "uniform scale factor (ignored with size)", "field", lo=1e-6, hi=1e6)
     # platform T (§3.4.1: it takes part in every convex front)
     platform: str | None = setting(None, "platform mesh in the model frame (top at z = 0); default: a disc slab", "field")
-    platform_margin: float = setting(DEFAULT_MARGIN, "disc radius beyond the footprint", "field", "mm")
-    platform_thickness: float = setting(DEFAULT_THICKNESS, "disc thickness", "field", "mm")
+    platform_margin: float = setting(DEFAULT_MARGIN, "disc radius beyond the footprint", "field", "mm", lo=0.0, hi=1000.0)
+    platform_thickness: float = setting(DEFAULT_THICKNESS, "disc thickness", "field", "mm", lo=0.1, hi=1000.0)
     # volume decomposition (§3.4)
-    voxel: float = setting(1.0, "voxel width w (the thesis used about the nozzle diameter)", "field", "mm")
+    voxel: float = setting(1.0, "voxel width w (the thesis used about the nozzle diameter)", "field", "mm",
+                           lo=0.001, hi=100.0)  # below ~0.3 mm the memory limit decides, naming the GiB
     method: str = setting("pg-sp-gcfa", "growing-field method: gcfa (Alg. 1), sp-gcfa (Alg. 3), pg-sp-gcfa (Alg. 5)",
                           "field", choices=METHODS)
-    delta_f: int = setting(1, "Δf, the peeling-field threshold step of Alg. 5", "field")
-    eps: float = setting(GROW_EPS, "ε of the inside test (Definitions 2-3), in voxel widths", "field", "w")
-    peel_eps: float = setting(PEEL_EPS, "ε of the peeling shells (Alg. 4), in voxel widths", "field", "w")
-    memory_limit: float = setting(8.0, "refuse grids needing more than this", "field", "GiB")
+    delta_f: int = setting(1, "Δf, the peeling-field threshold step of Alg. 5", "field", lo=1, hi=1000)
+    eps: float = setting(GROW_EPS, "ε of the inside test (Definitions 2-3), in voxel widths", "field", "w",
+                         lo=0.0, hi=10.0)
+    peel_eps: float = setting(PEEL_EPS, "ε of the peeling shells (Alg. 4), in voxel widths", "field", "w",
+                              lo=0.0, hi=10.0)
+    memory_limit: float = setting(8.0, "refuse grids needing more than this", "field", "GiB", lo=0.01, hi=4096.0)
     # working surfaces (§3.4.5)
-    layer_height: float | None = setting(None, "d of Eq. 3.2 (default: the voxel width)", "layers", "mm")
+    layer_height: float | None = setting(None, "d of Eq. 3.2 (default: the voxel width; 0.25-4 w)", "layers", "mm",
+                                          lo=0.0025, hi=400.0)
     # tool-paths (§3.5.1-3.5.2)
     path_width: float | None = setting(None, "spacing of the spiral passes (default: voxel / 0.8, the nozzle of §3.6)",
-                                       "toolpaths", "mm")
-    step: float = setting(1.0, "re-sampling distance along the paths (§3.5.2)", "toolpaths", "mm")
-    filament: float = setting(1.75, "filament diameter", "toolpaths", "mm")
-    feed: float = setting(600.0, "nozzle speed along the paths", "toolpaths", "mm/min")
+                                       "toolpaths", "mm", lo=0.005, hi=300.0)
+    step: float = setting(1.0, "re-sampling distance along the paths (§3.5.2)", "toolpaths", "mm", lo=0.05, hi=50.0)
+    filament: float = setting(1.75, "filament diameter", "toolpaths", "mm", lo=0.1, hi=10.0)
+    feed: float = setting(600.0, "nozzle speed along the paths", "toolpaths", "mm/min", lo=1.0, hi=60_000.0)
     max_tilt: float = setting(float(np.radians(40.0)), "largest angle between tool and layer normal (the shipped "
-                              "nozzle cone clears 40°)", "toolpaths", "rad", degrees=True)
+                              "nozzle cone clears 40°)", "toolpaths", "rad", degrees=True, lo=0.0,
+                              hi=float(np.radians(89.0)))
     gap_passes: bool = setting(True, "extra passes through the gaps the spirals leave (§3.7)", "toolpaths",
                                flag="--no-gap-passes", negate=True)
     # robot (§3.5.3, §4.3.1)
     robot: str | None = setting(None, "workcell: ur3, ur5, ur10, irb120 (shipped) or a workcell JSON file; "
                                 "without it the robot stage is skipped", "robot")
     rotations: int | None = setting(None, "p, rotations about the nozzle axis per waypoint (default: the workcell's)",
-                                    "robot")
-    max_rotations: int | None = setting(None, "largest p when doubling to remove splits (default: 4 p)", "robot")
+                                    "robot", lo=1, hi=720)
+    max_rotations: int | None = setting(None, "largest p when doubling to remove splits (default: 4 p)", "robot",
+                                        lo=1, hi=2880)
     motion_cost: str = setting("l1", "edge weight: Eq. 3.4 (l1) or Eq. 4.5 (quadratic)", "robot",
                                choices=("l1", "quadratic"))
+    trajectory: str = setting("jerk", "jerk: the graph path jerk-optimized (§4.3.2) within the workcell's acceleration "
+                              "and jerk limits, moves between segments by Ruckig; graph: the graph search's path as it "
+                              "is (§4.3.1, for comparison)", "robot", choices=("jerk", "graph"))
+
+    def __post_init__(self) -> None:
+        """Every number finite and in its range (unit named), choices and cross-field limits: checked when
+        the settings are made, before any stage runs (issue 15)."""
+        for f in dataclasses.fields(self):
+            value, m = getattr(self, f.name), f.metadata
+            if value is None and f.default is None:
+                continue
+            if "choices" in m and value not in m["choices"]:
+                raise CurvsliceError(f"setting {f.name} must be one of {', '.join(m['choices'])}, got {value!r}")
+            if "lo" in m:
+                shown = float(np.degrees(value)) if m.get("degrees") and isinstance(value, (int, float)) else value
+                lo, hi = (float(np.degrees(m["lo"])), float(np.degrees(m["hi"]))) if m.get("degrees") else (m["lo"], m["hi"])
+                check_number(shown, f"setting {f.name}", "degrees" if m.get("degrees") else m["unit"], lo=lo, hi=hi,
+                             integer=isinstance(f.default, int) or f.type == "int | None")
+        w = self.voxel
+        for name, low, high in (("layer_height", 0.25, 4.0), ("path_width", 0.5, 3.0)):
+            value = getattr(self, name)
+            if value is not None and not low * w <= value <= high * w:
+                raise CurvsliceError(f"setting {name} must lie between {low:g} and {high:g} voxel widths "
+                                     f"({low * w:g}-{high * w:g} mm at voxel {w:g} mm), got {value:g} mm")
+        if self.rotations and self.max_rotations and self.max_rotations < self.rotations:
+            raise CurvsliceError(f"setting max_rotations ({self.max_rotations}) must be at least rotations "
+                                 f"({self.rotations})")
 
     def replace(self, **changes: Any) -> Settings:
         """A copy with ``changes`` (unknown names are an error)."""
@@ -159,12 +195,14 @@ class RobotResult:
 
 @dataclass
 class Context:
-    """What a stage function gets: the model, the settings, the earlier results, and a progress bar."""
+    """What a stage function gets: the model, the settings, the earlier results, a progress bar, and
+    the executor its per-layer tasks run on (:mod:`curvslice.executors`; never changes a result)."""
 
     model: str | Path | trimesh.Trimesh
     settings: Settings
     results: dict[str, Any]
     quiet: bool = True
+    executor: Executor = field(default_factory=InProcess)
 
     def bar(self, desc: str, total: int, unit: str = "voxel") -> tqdm:
         return tqdm(total=total, desc=desc, unit=unit, unit_scale=True, leave=False, disable=self.quiet,
@@ -186,6 +224,10 @@ def run_field(ctx: Context) -> FieldResult:
     start = time.perf_counter()
     solid, load = _load(ctx)
     timings["load"] = time.perf_counter() - start
+    extent = float(solid.extents.max())
+    if extent < 4 * s.voxel:
+        raise CurvsliceError(f"voxel {s.voxel:g} mm is too coarse for a model {extent:.3g} mm across (fewer than 4 "
+                             f"voxels): choose --voxel {extent / 20:.2g} or less")
     platform = load_platform(s.platform) if s.platform else disc_platform(
         solid, margin=s.platform_margin, thickness=s.platform_thickness)
     start = time.perf_counter()
@@ -242,7 +284,8 @@ def run_layers(ctx: Context) -> LayersResult:
     start = time.perf_counter()
     with ctx.bar("working surfaces", count, unit="layer") as bar:
         layers = extract_working_surfaces(fr.growing, grid.origin, grid.voxel_size, fr.solid,
-                                          layer_height=s.layer_height, occupied=grid.occupied, progress=bar)
+                                          layer_height=s.layer_height, occupied=grid.occupied, progress=bar,
+                                          executor=ctx.executor)
     faces = [len(m.faces) for m in layers]
     report = {
         "count": len(layers), "layer_height_mm": s.layer_height or grid.voxel_size,
@@ -267,8 +310,11 @@ def run_toolpaths(ctx: Context) -> ToolpathsResult:
     settings = ctx.settings.toolpath_settings()
     start = time.perf_counter()
     with ctx.bar("tool-paths", len(layers), unit="layer") as bar:
-        tp = plan_toolpaths(layers, settings, progress=bar)
+        tp = plan_toolpaths(layers, settings, progress=bar, executor=ctx.executor)
     seconds = time.perf_counter() - start
+    if not len(tp.positions):
+        raise CurvsliceError(f"no tool-path fits on any of the {len(layers)} layers (every region is narrower than "
+                             f"the path width {settings.path_width:g} mm): choose a smaller --voxel or --path-width")
     cover = [layer_cover(m, tp.positions[tp.layer == i], tp.path[tp.layer == i], settings.path_width, seed=i,
                          bead=tp.bead[tp.layer == i]) for i, m in enumerate(layers, start=1) if len(m.faces)]
     rows = tp.layers
@@ -296,6 +342,7 @@ def run_robot(ctx: Context) -> RobotResult:
     Skipped (``motion`` None) when no robot is set."""
     from curvslice.collision import CollisionScene  # pinocchio / fcl only when a robot is planned
     from curvslice.kinematics import load_robot
+    from curvslice.jerk import trajectory_stage
     from curvslice.motion import motion_summary, plan_print
     from curvslice.workcell import load_workcell
 
@@ -315,8 +362,17 @@ def run_robot(ctx: Context) -> RobotResult:
     with ctx.bar(f"robot motion ({cell.name})", n, unit="waypoint") as bar:
         motion = plan_print(robot, cell, toolpaths, lambda layer: scene.for_layer(layers, layer),
                             cost=s.motion_cost, max_rotations=s.max_rotations, progress=bar.update)
-    report = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n),
-              "timings_s": {"robot": round(time.perf_counter() - start, 3)}}
+    if n and not len(motion.q):
+        raise CurvsliceError(f"the workcell {cell.name} reaches none of the {n} waypoints with a collision-free pose: "
+                             "move the part within the arm's reach (workcell JSON: platform/nozzle pose) or pick "
+                             "another robot")
+    graph_s = time.perf_counter() - start
+    motion, jerk = trajectory_stage(robot, cell, toolpaths, motion, s.trajectory,
+                                    lambda layer: scene.for_layer(layers, layer))
+    seconds = time.perf_counter() - start
+    report = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n), "jerk": jerk,
+              "timings_s": {"robot": round(seconds, 3), "robot_graph": round(graph_s, 3),
+                            "robot_trajectory": round(seconds - graph_s, 3)}}
     if not ctx.quiet:
         print(f"robot: {report['rows']}/{n} waypoints, {report['segments']} motions ({report['splits']} splits), "
               f"{report['skipped']} skipped, {report['deviated']} with the axis tilted "
@@ -465,7 +521,8 @@ def settings_of(folder: str | Path) -> Settings:
 
 def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, until: str = "toolpaths",
         out: str | Path | None = None, resume: str | Path | None = None, force: bool = False, quiet: bool = True,
-        after: Callable[[Slice, Path], None] | None = None, redo: str | None = None) -> Slice:
+        after: Callable[[Slice, Path], None] | None = None, redo: str | None = None,
+        executor: Executor | None = None) -> Slice:
     """Run the stages up to and including ``until`` on ``model`` (a mesh file or a Trimesh).
 
     ``out``: write the output folder atomically (an existing one is replaced only with ``force``).
@@ -473,18 +530,26 @@ def run(model: str | Path | trimesh.Trimesh, settings: Settings | None = None, u
     are copied, their results loaded); the first stage whose key differs and every later one run anew, and
     so do stage ``redo`` and every later one (to time or re-check a stage whose inputs did not change).
     ``after(slice, tmp)`` may add files to the folder before it becomes final (the CLI's preview).
+    ``executor``: where the stages' per-layer tasks run (default in-process; a Dask cluster from
+    :func:`curvslice.executors.open_executor`) -- the results are the same.
     """
     settings = settings or Settings()
     stage(until)  # an unknown name is an error before any work
+    if settings.robot is not None and STAGE_NAMES.index(until) >= STAGE_NAMES.index("robot"):
+        from curvslice.workcell import load_workcell
+
+        load_workcell(settings.robot)  # a bad workcell fails now, not after the slicing stages
     keys = stage_keys(model, settings)
     old = _reusable(resume, keys, redo) if resume is not None else {}
     protect = () if isinstance(model, trimesh.Trimesh) else (Path(model),)
     folder = atomic_folder(out, force=force, protect=protect) if out is not None else nullcontext(None)
     with folder as tmp:
-        result = _run_stages(model, settings, until, keys, old, tmp, quiet)
+        result = _run_stages(model, settings, until, keys, old, tmp, quiet, executor or InProcess())
         if tmp is not None:
             if after is not None:
                 after(result, tmp)
+            # every file written, so `curvslice verify` can require each one (a deleted file is a FAIL)
+            result.report["files"] = sorted(str(p.relative_to(tmp)) for p in tmp.rglob("*") if p.is_file())
             (tmp / "report.json").write_text(json.dumps(result.report, indent=2, default=_jsonable))
     if out is not None:
         result.folder = Path(out)
@@ -507,14 +572,14 @@ def _reusable(resume: str | Path, keys: dict[str, str], redo: str | None = None)
 
 
 def _run_stages(model, settings: Settings, until: str, keys: dict[str, str], old: dict[str, Any],
-                tmp: Path | None, quiet: bool) -> Slice:
+                tmp: Path | None, quiet: bool, executor: Executor) -> Slice:
     report: dict[str, Any] = {
         "curvslice": __version__, "model": str(Path(model).resolve()) if not isinstance(model, trimesh.Trimesh) else
         "<in-memory mesh>", "pipeline": PIPELINE_VERSION, "stages": [], "reused": [], "stage_keys": {},
         "parameters": asdict(settings),
         "timings_s": {},
     }
-    ctx = Context(model, settings, {}, quiet)
+    ctx = Context(model, settings, {}, quiet, executor)
     start = time.perf_counter()
     for stage in STAGES[:STAGE_NAMES.index(until) + 1]:
         if stage.name in old:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import subprocess
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -177,10 +178,19 @@ class Viewer:
             self.server.wait(timeout=10)
 
 
-def open_viewer(zmq_url: str | None = None) -> Viewer:
-    """Start a meshcat server on localhost (or join the one at ``zmq_url``) and connect to it."""
+def open_viewer(zmq_url: str | None = None, timeout: float = 10.0) -> Viewer:
+    """Start a meshcat server on localhost (or join the one at ``zmq_url``) and connect to it.
+
+    Joining waits at most ``timeout`` seconds: meshcat's handshake blocks forever on a port where
+    no server answers, so it runs in a daemon thread that is abandoned on a timeout."""
     if zmq_url is not None:
-        return Viewer(meshcat.Visualizer(zmq_url=zmq_url))
+        joined: list[meshcat.Visualizer] = []
+        thread = threading.Thread(target=lambda: joined.append(meshcat.Visualizer(zmq_url=zmq_url)), daemon=True)
+        thread.start()
+        thread.join(timeout)
+        if not joined:
+            raise CurvsliceError(f"no meshcat server answered at {zmq_url} within {timeout:g} s")
+        return Viewer(joined[0])
     proc, url, _ = start_zmq_server_as_subprocess()
     return Viewer(meshcat.Visualizer(zmq_url=url), proc)
 

@@ -22,6 +22,8 @@ Workcell file (JSON; lengths in mm, angles in degrees, as a person edits it)::
       "obstacles": [body, ...],       # bodies in the base frame B (table, frame posts)
       "joint_limits_deg": {"lower": [...6], "upper": [...6]},        # optional, narrows the URDF's
       "max_joint_speed_rad_s": 1.0,   # ξ of §3.5.3
+      "max_joint_acceleration_rad_s2": 3.0,   # a_max of Eq. 4.2, one number or 6 (per joint)
+      "max_joint_jerk_rad_s3": 15.0,          # j_max of Eq. 4.2, one number or 6 (per joint)
       "linear_speed_mm_s": 10.0,      # v̄ of §3.5.3 (used when the tool-path gives no feed)
       "travel_speed_mm_s": 50.0,      # jumps between paths
       "min_step_time_s": 0.008,       # floor on Δt (one controller cycle) for coincident waypoints
@@ -30,6 +32,14 @@ Workcell file (JSON; lengths in mm, angles in degrees, as a person edits it)::
       "max_axis_deviation_deg": 20.0, # a waypoint may tilt its tool axis this far (0 = never)
       "axis_deviation_step_deg": 2.5  # ... searched in steps of this size
     }
+
+Acceleration and jerk limits (Eq. 4.2, §4.3.2): neither Universal Robots (UR3/UR5/UR10 CB3 and
+e-Series datasheets and user manuals) nor ABB (IRB120 product specification) publish per-joint
+maximum joint accelerations or jerks; the datasheets give joint speeds only (URScript's own
+``movej`` default is a = 1.4 rad/s²). The shipped workcells therefore use the conservative bounds
+a_max = 3 rad/s² and j_max = 15 rad/s³ on every joint (the bounds set for this project in issue
+19); a cell with measured limits states its own. Every row inside a motion segment meets them
+(:mod:`curvslice.jerk`), and ``curvslice verify`` re-derives both from ``joints.csv``.
 
 Axis deviation: a waypoint whose planned orientation t_j has no collision-free pose (all p rotations ×
 all IK branches collide, typically the heater block meeting the platform at steep tilts next to it)
@@ -63,6 +73,7 @@ from scipy.spatial.transform import Rotation
 
 from curvslice.errors import CurvsliceError
 from curvslice.kinematics import ROBOT_NAMES, Robot, rigid_inverse
+from curvslice.validate import check_number
 
 
 @dataclass(frozen=True)
@@ -90,6 +101,8 @@ class Workcell:
     joint_lower: np.ndarray | None = field(default=None, repr=False)
     joint_upper: np.ndarray | None = field(default=None, repr=False)
     max_joint_speed: float = 1.0
+    max_joint_acceleration: tuple[float, ...] = (3.0,) * 6  # rad/s², per joint (Eq. 4.2)
+    max_joint_jerk: tuple[float, ...] = (15.0,) * 6  # rad/s³, per joint (Eq. 4.2)
     linear_speed: float = 10.0
     travel_speed: float = 50.0
     min_step_time: float = 0.008
@@ -132,7 +145,7 @@ def _vector(spec: dict, key: str, n: int, where: str) -> list[float]:
     value = spec.get(key, [0.0] * n)
     if not (isinstance(value, list) and len(value) == n and all(isinstance(v, (int, float)) for v in value)):
         raise CurvsliceError(f"workcell {where}: '{key}' must be a list of {n} numbers")
-    return [float(v) for v in value]
+    return [check_number(v, f"workcell {where}: '{key}'[{i}]") for i, v in enumerate(value)]
 
 
 def _pose(spec: dict, where: str) -> np.ndarray:
@@ -147,7 +160,7 @@ def _body(spec: dict, where: str) -> Body:
     if kind == "box":
         dims = tuple(_vector(spec, "size_mm", 3, name))
     elif kind in ("cylinder", "cone"):
-        dims = (float(spec.get("radius_mm", 0)), float(spec.get("length_mm", 0)))
+        dims = tuple(check_number(spec.get(k, 0), f"workcell body '{name}': '{k}'", "mm") for k in ("radius_mm", "length_mm"))
     else:
         raise CurvsliceError(f"workcell body '{name}': type must be 'box', 'cylinder' or 'cone' (got {kind!r})")
     if min(dims) <= 0:
@@ -165,8 +178,35 @@ def _body_dict(body: Body) -> dict[str, object]:
     return out
 
 
+#: Scalar keys of the workcell JSON: (lowest, lowest excluded, highest, unit); NaN, inf and text are refused.
+_SCALARS: dict[str, tuple[float, bool, float | None, str]] = {
+    "max_joint_speed_rad_s": (0, True, None, "rad/s"), "linear_speed_mm_s": (0, True, None, "mm/s"),
+    "travel_speed_mm_s": (0, True, None, "mm/s"), "min_step_time_s": (0, True, None, "s"),
+    "tool_turn_speed_deg_s": (0, False, None, "deg/s"), "rotations": (1, False, 3600, "rotations"),
+    "max_axis_deviation_deg": (0, False, 89.999, "degrees"), "axis_deviation_step_deg": (0, True, 90, "degrees"),
+}
+
+
+def _per_joint(spec: dict, key: str, default: float, source: str) -> tuple[float, ...]:
+    """A positive per-joint bound given as one number or a list of 6."""
+    value = spec.get(key, default)
+    values = [value] * 6 if isinstance(value, (int, float)) else value
+    if not (isinstance(values, list) and len(values) == 6 and all(isinstance(v, (int, float)) and not isinstance(v, bool) and 0 < v < float("inf") for v in values)):
+        raise CurvsliceError(f"{source}: '{key}' must be a finite positive number or a list of 6 of them")
+    return tuple(float(v) for v in values)
+
+
 def workcell_from_dict(spec: dict, source: str = "workcell") -> Workcell:
     """Validate and build a :class:`Workcell` from its JSON object (see the module docstring)."""
+    for key, (lo, lo_open, hi, unit) in _SCALARS.items():
+        if key in spec:
+            check_number(spec[key], f"{source}: '{key}'", unit, lo=lo, lo_open=lo_open, hi=hi, integer=key == "rotations")
+    platform = spec.get("platform", {})
+    if not isinstance(platform, dict):
+        raise CurvsliceError(f"{source}: 'platform' must be an object with radius_mm and thickness_mm")
+    for key in ("radius_mm", "thickness_mm"):
+        if key in platform:
+            check_number(platform[key], f"{source}: 'platform.{key}'", "mm", lo=0, lo_open=True)
     robot = str(spec.get("robot", "")).lower()
     if robot not in ROBOT_NAMES:
         raise CurvsliceError(f"{source}: 'robot' must be one of {', '.join(ROBOT_NAMES)} (got {robot!r})")
@@ -192,6 +232,8 @@ def workcell_from_dict(spec: dict, source: str = "workcell") -> Workcell:
         joint_lower=lower,
         joint_upper=upper,
         max_joint_speed=float(spec.get("max_joint_speed_rad_s", 1.0)),
+        max_joint_acceleration=_per_joint(spec, "max_joint_acceleration_rad_s2", 3.0, source),
+        max_joint_jerk=_per_joint(spec, "max_joint_jerk_rad_s3", 15.0, source),
         linear_speed=float(spec.get("linear_speed_mm_s", 10.0)),
         travel_speed=float(spec.get("travel_speed_mm_s", 50.0)),
         min_step_time=float(spec.get("min_step_time_s", 0.008)),
@@ -228,6 +270,8 @@ def workcell_to_dict(cell: Workcell) -> dict[str, object]:
         }
     out.update(
         max_joint_speed_rad_s=cell.max_joint_speed,
+        max_joint_acceleration_rad_s2=list(cell.max_joint_acceleration),
+        max_joint_jerk_rad_s3=list(cell.max_joint_jerk),
         linear_speed_mm_s=cell.linear_speed,
         travel_speed_mm_s=cell.travel_speed,
         min_step_time_s=cell.min_step_time,

@@ -57,6 +57,7 @@ from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from curvslice.errors import CurvsliceError
+from curvslice.executors import Executor, InProcess
 from curvslice.growing_field import ASN_OFFSETS
 from curvslice.voxelize import centres_inside, surface_voxels
 
@@ -692,7 +693,7 @@ def layer_levels(max_growing: int, voxel_size: float, layer_height: float | None
 def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size: float,
                              solid: trimesh.Trimesh, layer_height: float | None = None,
                              occupied: np.ndarray | None = None,
-                             progress=None) -> list[trimesh.Trimesh]:
+                             progress=None, executor: Executor | None = None) -> list[trimesh.Trimesh]:
     """One trimmed working surface per layer, in print order (§3.4.5).
 
     ``growing`` is G (int, 0 = empty/missed) on the voxel grid (``origin`` = centre of voxel
@@ -701,7 +702,8 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
     level used), ``untrimmed_faces``, ``separated_vertices`` / ``dropped_faces`` (see
     :func:`separate_from`) and the seconds spent in ``dc_seconds`` / ``trim_seconds`` (trimming and
     separation).
-    ``progress`` is an optional tqdm-like object updated once per layer.
+    ``progress`` is an optional tqdm-like object updated once per layer. The layers are contoured and
+    trimmed as independent tasks on ``executor`` (default: in-process), then separated in order.
     """
     growing = np.asarray(growing)
     if growing.ndim != 3 or not np.issubdtype(growing.dtype, np.integer):
@@ -718,33 +720,44 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
     sides = VoxelSides.of(solid, np.asarray(origin, float), w, growing.shape)
     step = 1.0 if layer_height is None else float(layer_height) / w
     levels = layer_levels(int(growing.max()), w, layer_height)
+    ex = executor if executor is not None else InProcess()
+    contoured = ex.map(_contour_layer, range(len(levels)), progress=progress, levels=levels, step=step, field=field,
+                       edges=edges, active=active, distance=distance, sides=sides)
     layers = []
-    for i in range(len(levels)):
-        band = (float(levels[i] - step), float(levels[i]))
-        dc_s = trim_s = 0.0
-        for offset in FALLBACK_OFFSETS:
-            level = float(levels[i] + offset * step)
-            t0 = time.perf_counter()
-            v, f = dual_contour(field, level, band, edges=edges, active=active)
-            t1 = time.perf_counter()
-            tv, tf = trim_by_solid(v, f, distance, sides)
-            dc_s += t1 - t0
-            trim_s += time.perf_counter() - t1
-            if len(tf):
-                break
+    for i, (tv, tf, untrimmed, level, offset, dc_s, trim_s) in enumerate(contoured):
         moved = dropped = 0
         t2 = time.perf_counter()
         if layers:
             tv, tf, moved, dropped = separate_from(layers[-1], tv, tf, w, distance, sides)
         trim_s += time.perf_counter() - t2
         mesh = trimesh.Trimesh(tv, tf, process=False)
-        mesh.metadata.update(layer=i + 1, isovalue=level, lowered=offset != 0.0, untrimmed_faces=len(f),
+        mesh.metadata.update(layer=i + 1, isovalue=level, lowered=offset != 0.0, untrimmed_faces=untrimmed,
                              separated_vertices=moved, dropped_faces=dropped,
                              dc_seconds=dc_s, trim_seconds=trim_s)
         layers.append(mesh)
-        if progress is not None:
-            progress.update(1)
     return layers
+
+
+def _contour_layer(i: int, levels: np.ndarray, step: float, field: ContinuedField, edges: _Edges,
+                   active: np.ndarray, distance: SolidDistance, sides: VoxelSides
+                   ) -> tuple[np.ndarray, np.ndarray, int, float, float, float, float]:
+    """Layer ``i``'s working surface dual-contoured and trimmed by H, lowered by the fallback offsets
+    while the trimmed surface is empty: independent of the other layers (a parallel task). Returns
+    the trimmed vertices and faces, the untrimmed face count, the level, its offset and the seconds
+    of contouring and trimming."""
+    band = (float(levels[i] - step), float(levels[i]))
+    dc_s = trim_s = 0.0
+    for offset in FALLBACK_OFFSETS:
+        level = float(levels[i] + offset * step)
+        t0 = time.perf_counter()
+        v, f = dual_contour(field, level, band, edges=edges, active=active)
+        t1 = time.perf_counter()
+        tv, tf = trim_by_solid(v, f, distance, sides)
+        dc_s += t1 - t0
+        trim_s += time.perf_counter() - t1
+        if len(tf):
+            break
+    return tv, tf, len(f), level, offset, dc_s, trim_s
 
 
 def write_layers(outdir: str | Path, layers: list[trimesh.Trimesh]) -> list[Path]:

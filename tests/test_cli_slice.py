@@ -22,7 +22,7 @@ def _run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 def test_slice_writes_the_contract_files_and_verifies(tmp_path):
     out = tmp_path / "tee"
-    assert main(["slice", str(MODELS / "tee.stl"), "--voxel", "2", "--out", str(out), "--stages", "field", "--quiet"]) == 0
+    assert main(["slice", str(MODELS / "tee.stl"), "--voxel", "2", "--out", str(out), "--stages", "field", "--quiet", "--no-verify"]) == 0
     with np.load(out / "field.npz") as z:
         assert {"occupied", "peeling", "growing", "origin", "voxel_size", "method", "platform_vertices"} <= set(z.files)
         assert str(z["method"]) == "pg-sp-gcfa" and z["growing"].dtype == np.int32
@@ -38,7 +38,7 @@ def test_slice_writes_the_contract_files_and_verifies(tmp_path):
 
 def test_existing_output_needs_force_and_input_is_never_overwritten(tmp_path):
     out = tmp_path / "o"
-    args = ["slice", str(MODELS / "tee.stl"), "--voxel", "3", "--out", str(out), "--stages", "field", "--quiet"]
+    args = ["slice", str(MODELS / "tee.stl"), "--voxel", "3", "--out", str(out), "--stages", "field", "--quiet", "--no-verify"]
     assert main(args) == 0
     assert main(args) == 2
     assert main(args + ["--force"]) == 0

@@ -13,8 +13,8 @@ from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import unary_union
 
 from curvslice import cli
-from curvslice.cell import load_cell, tool_normals
-from curvslice.drape import (
+from curvslice.cell.cells import load_cell, tool_normals
+from curvslice.cell.drape import (
     BROOKS_PLATFORM,
     MeshSurface,
     PolynomialSurface,

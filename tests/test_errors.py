@@ -36,7 +36,7 @@ def test_cli_reports_a_missing_package_in_one_line(tmp_path: Path, blocked: str,
     if argv[0] == "verify":  # a minimal slice folder whose verification needs trimesh.proximity
         pytest.importorskip("rtree")
         out = tmp_path / "tee"
-        subprocess.run([sys.executable, "-m", "curvslice", "slice", str(folder), "--voxel", "4", "--stages",
+        subprocess.run([sys.executable, "-m", "curvslice", "slice", str(folder), "--voxel", "4", "--no-verify", "--stages",
                         "layers", "--quiet", "--out", str(out)], check=True, capture_output=True)
         argv = ["verify", str(out)]
     env = {"PYTHONPATH": f"{tmp_path}:{ROOT}", "PATH": "/usr/bin:/bin"}

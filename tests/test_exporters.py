@@ -124,13 +124,13 @@ def test_joint_writers_reject_bad_input(tmp_path, write):
 # ---------------------------------------------------------------- Cartesian programs (convert)
 
 from curvslice import cli  # noqa: E402
-from curvslice.cell import Cell, RapidIO, gcode6_samples, load_cell, robot_path, tool_normals  # noqa: E402
+from curvslice.cell.cells import Cell, RapidIO, gcode6_samples, load_cell, robot_path, tool_normals  # noqa: E402
+from curvslice.cell.gcode import parse_gcode  # noqa: E402
 from curvslice.exporters.arduino import read_accelstepper_sketch, write_accelstepper_sketch  # noqa: E402
 from curvslice.exporters.gcode6 import read_gcode6, write_gcode6  # noqa: E402
 from curvslice.exporters.rapid import read_rapid, write_rapid  # noqa: E402
 from curvslice.exporters.urscript import read_urscript, write_urscript  # noqa: E402
 from curvslice.exporters.vplus import read_vplus, signal_count, speed_inventory, write_vplus  # noqa: E402
-from curvslice.gcode import parse_gcode  # noqa: E402
 from test_gcode import prusa_style  # noqa: E402
 
 SEED_003_VPLUS = """.PROGRAM example();

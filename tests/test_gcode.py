@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from curvslice.cell.gcode import parse_gcode, read_gcode
 from curvslice.errors import CurvsliceError
-from curvslice.gcode import parse_gcode, read_gcode
 
 
 def prusa_style(layers: int = 4, seed: int = 0, size: float = 30.0, origin=(100.0, 100.0)) -> str:
@@ -172,7 +172,7 @@ def test_feed_first_or_last_and_missing_axes():
 
 def test_dialect_details_and_events():
     text = (
-        "N10 G1 X5 Y5 F600*57\n"
+        "N10 G1 X5 Y5 F600*72\n"  # XOR of the bytes before *: a valid checksum
         "g1x6y7e0.5 ; lowercase, no spaces\n"
         "G1 X7 (inline comment) Y8 E1\n"
         "M220 S50\nM221 S200\n"

@@ -10,17 +10,17 @@ import pytest
 from scipy.interpolate import RegularGridInterpolator
 
 from curvslice import cli
-from curvslice.cell import load_cell, robot_path
-from curvslice.errors import CurvsliceError
-from curvslice.gcode import parse_gcode
-from curvslice.levelling import (
+from curvslice.cell.cells import load_cell, robot_path
+from curvslice.cell.gcode import parse_gcode
+from curvslice.cell.levelling import (
     HeightMap,
     heightmap_from_points,
     level_path,
     read_probe_csv,
     write_probe_csv,
-    write_probe_routine,
 )
+from curvslice.errors import CurvsliceError
+from curvslice.exporters.rapid import write_probe_routine
 
 #: Seed 004 Appendix 10: the 25 probed bed heights, 50 mm apart.
 SEED_004_PROBES = np.array([
@@ -178,8 +178,9 @@ def test_level_cli_and_convert_level(tmp_path, monkeypatch, capsys):
     assert cli.main(args) == 0 and (tmp_path / "BedProbe.mod").is_file()
     src = tmp_path / "line.gcode"
     src.write_text("M83\nG1 X20 Y20 Z0.2 F600\nG1 X180 Y180 E5\n")
-    assert cli.main(["convert", str(src), "--to", "gcode6", "--out", str(tmp_path), "--level", str(csv),
+    # the extended G-code keeps the input's name, so it goes to another folder (never over the input)
+    assert cli.main(["convert", str(src), "--to", "gcode6", "--out", str(tmp_path / "out"), "--level", str(csv),
                      "--level-reference", "2.5"]) == 0
-    g6 = parse_gcode((tmp_path / "line.gcode").read_text())
+    g6 = parse_gcode((tmp_path / "out" / "line.gcode").read_text())
     hmap = read_probe_csv(csv)
     assert np.allclose(g6.positions[:, 2], 0.2 + hmap.height(g6.positions[:, 0], g6.positions[:, 1]) - 2.5, atol=1e-4)

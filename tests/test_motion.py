@@ -11,19 +11,17 @@ import pytest
 
 from curvslice.collision import CollisionScene
 from curvslice.kinematics import fk, fk_reference, load_robot
-from curvslice.motion import (
+from curvslice.ladder import (
     circular_joints,
     deviate_axes,
     edge_weights,
     ladder,
-    plan_motion,
     reference_shortest_path,
     shortest_path,
     sparse_edges,
-    step_times,
     tilted_axes,
-    unwind,
 )
+from curvslice.motion import plan_motion, step_times, unwind
 from curvslice.workcell import load_workcell, waypoints_from_flange
 
 

@@ -71,7 +71,7 @@ def test_resume_reuses_unchanged_stages_and_matches_a_fresh_run(tmp_path: Path) 
     assert r.returncode == 0, r.stderr
     rep = _report(resumed)
     assert rep["reused"] == ["field", "layers", "toolpaths"] and rep["stages"][-1] == "robot"
-    assert set(rep["timings_s"]) == {"robot", "total"}
+    assert set(rep["timings_s"]) == {"robot", "robot_graph", "robot_trajectory", "total"}
     assert _cli("slice", str(TEE), "--voxel", "2", "--robot", "ur5", "--quiet", "--out", str(fresh)).returncode == 0
     for name in ("field.npz", "toolpaths.npz"):
         a, b = _arrays(fresh / name), _arrays(resumed / name)
@@ -82,8 +82,40 @@ def test_resume_reuses_unchanged_stages_and_matches_a_fresh_run(tmp_path: Path) 
     # resuming into the same folder replaces it only with --force
     r = _cli("slice", "--resume", str(first), "--path-width", "2.2", "--quiet")
     assert r.returncode == 2 and "--force" in r.stderr
-    r = _cli("slice", "--resume", str(first), "--voxel", "3", "--quiet", "--force")
+    r = _cli("slice", "--resume", str(first), "--voxel", "3", "--quiet", "--force", "--no-verify")
     assert r.returncode == 0, r.stderr
     rep = _report(first)
     assert rep["reused"] == [] and rep["parameters"]["voxel"] == 3.0
     assert dataclasses.asdict(settings_of(first))["voxel"] == 3.0
+
+
+@pytest.mark.parametrize("option, value", [("--voxel", "inf"), ("--size", "inf"), ("--memory-limit", "nan"),
+                                           ("--path-width", "0"), ("--rotations", "0"), ("--eps", "-1"),
+                                           ("--voxel", "1e6"), ("--layer-height", "1e6"), ("--max-tilt", "95"),
+                                           ("--robot", "no_such_cell.json")])
+def test_bad_settings_are_one_line_before_any_work(tmp_path: Path, option: str, value: str) -> None:
+    r = _cli("slice", str(TEE), option, value, "--out", str(tmp_path / "o"))
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and "Traceback" not in r.stderr, r.stderr
+    assert not (tmp_path / "o").exists() and not list(tmp_path.iterdir())
+
+
+def test_settings_validate_in_the_library_too() -> None:
+    for bad in (dict(voxel=float("nan")), dict(path_width=0.1, voxel=1.0), dict(rotations=8, max_rotations=4),
+                dict(delta_f=0), dict(method="greedy")):
+        with pytest.raises(CurvsliceError, match="setting"):
+            Settings(**bad)
+
+
+def test_a_failing_result_is_a_non_zero_exit(tmp_path: Path) -> None:
+    """A cube floating 10 mm above another cannot be reached support-free: most of its voxels are missed,
+    and `slice` says which check failed instead of exiting 0 (issue 15)."""
+    import trimesh
+
+    body = trimesh.util.concatenate([trimesh.creation.box((12, 12, 6)).apply_translation((0, 0, 3)),
+                                     trimesh.creation.box((8, 8, 6)).apply_translation((0, 0, 19))])
+    model = tmp_path / "floating.stl"
+    body.export(model)
+    r = _cli("slice", str(model), "--voxel", "1.5", "--stages", "field", "--quiet", "--out", str(tmp_path / "f"))
+    assert r.returncode == 1 and "missed voxels" in r.stderr, r.stderr
+    assert (tmp_path / "f" / "field.npz").exists()  # the folder is kept for inspection

@@ -211,7 +211,7 @@ def test_cli_slice_writes_toolpaths_and_report(tmp_path):
     dome = dome.slice_plane([0, 0, 0.0], [0, 0, 1.0], cap=True)
     dome.export(tmp_path / "dome.stl")
     out = tmp_path / "out"
-    assert main([ "slice", str(tmp_path / "dome.stl"), "--voxel", "1.5", "--out", str(out), "--quiet",
+    assert main([ "slice", str(tmp_path / "dome.stl"), "--voxel", "1.5", "--out", str(out), "--quiet", "--no-verify",
                  "--stages", "toolpaths"]) == 0
     data = np.load(out / "toolpaths.npz")
     assert set(data.files) >= {"positions", "normals", "layer", "path", "extrusion", "thickness", "feed"}
@@ -234,7 +234,7 @@ def test_kitten_coarse_toolpaths_verify(tmp_path, shared_model):
     from curvslice.verify.toolpaths import checks
 
     out = tmp_path / "kitten"
-    assert main(["slice", str(shared_model("kitten")), "--voxel", "1.6", "--out", str(out), "--quiet"]) == 0
+    assert main(["slice", str(shared_model("kitten")), "--voxel", "1.6", "--out", str(out), "--quiet", "--no-verify"]) == 0
     results = {c.name: c for c in checks(out)}
     for name in ("gcode matches npz", "extrusion", "orientation continuity", "orientation validity", "samples on layers"):
         assert results[name].passed, results[name]

@@ -75,7 +75,7 @@ def tee_folder(tmp_path_factory) -> Path:
     """tee.stl at 2 mm with surfaces and tool-paths, and a synthetic robot trajectory
     (UR5 workcell, a smooth joint sweep) so the robot part of the scene is exercised too."""
     out = tmp_path_factory.mktemp("viz") / "tee"
-    assert main(["slice", str(REPO / "models" / "tee.stl"), "--voxel", "2", "--out", str(out),
+    assert main(["slice", str(REPO / "models" / "tee.stl"), "--voxel", "2", "--no-verify", "--out", str(out),
                  "--stages", "toolpaths", "--preview", "--quiet"]) == 0
     cell = load_workcell("ur5")
     save_workcell(cell, out / "workcell.json")

@@ -12,9 +12,21 @@ from pathlib import Path
 
 import numpy as np
 
-from curvslice.cell import load_cell
+from curvslice.cell.cells import load_cell
+from curvslice.cell.levelling import MAX_PROBES, read_probe_csv
 from curvslice.errors import CurvsliceError
-from curvslice.levelling import read_probe_csv, write_probe_routine
+from curvslice.exporters.rapid import check_identifier, write_probe_routine
+from curvslice.outdir import atomic_files
+from curvslice.validate import check_budget, input_file, number, program_name
+
+
+def _signal_name(text: str) -> str:
+    """``--signal``: a RAPID identifier (it is written into the module as is)."""
+    try:
+        check_identifier(text)
+    except CurvsliceError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
 
 
 def add_parser(subparsers) -> None:
@@ -22,36 +34,38 @@ def add_parser(subparsers) -> None:
                               description=__doc__.split("\n\n")[1])
     sub = p.add_subparsers(dest="level_command", required=True, metavar="ACTION")
     r = sub.add_parser("routine", help="write the RAPID SearchL probing module for a grid")
-    r.add_argument("--xs", type=float, nargs=3, metavar=("X0", "X1", "NX"), required=True, help="x range and count, mm")
-    r.add_argument("--ys", type=float, nargs=3, metavar=("Y0", "Y1", "NY"), required=True, help="y range and count, mm")
+    r.add_argument("--xs", type=number("mm or points"), nargs=3, metavar=("X0", "X1", "NX"), required=True, help="x range and count, mm")
+    r.add_argument("--ys", type=number("mm or points"), nargs=3, metavar=("Y0", "Y1", "NY"), required=True, help="y range and count, mm")
     r.add_argument("--cell", default="generic", help="cell preset or JSON file (tool, work object, orientation)")
-    r.add_argument("--probe-offset", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("DX", "DY", "DZ"),
+    r.add_argument("--probe-offset", type=number("mm"), nargs=3, default=(0.0, 0.0, 0.0), metavar=("DX", "DY", "DZ"),
                    help="probe tip minus nozzle tip, mm (seed 004: 24.88 -39.05 2.4)")
-    r.add_argument("--signal", default="diProbe", help="digital input raised by the probe")
-    r.add_argument("--name", default="BedProbe", help="module and procedure name")
+    r.add_argument("--signal", type=_signal_name, default="diProbe", help="digital input raised by the probe")
+    r.add_argument("--name", type=program_name, default="BedProbe", help="module and procedure name")
     r.add_argument("--out", type=Path, default=Path("."), help="output folder")
     r.set_defaults(run=run_routine)
     s = sub.add_parser("report", help="summarise a probed height map (x,y,z CSV)")
-    s.add_argument("probe", type=Path, help="CSV of probed points x,y,z")
+    s.add_argument("probe", type=input_file, help="CSV of probed points x,y,z")
     s.set_defaults(run=run_report)
 
 
 def _axis(spec: list[float], label: str) -> np.ndarray:
     start, stop, count = spec
     if count < 2 or count != int(count) or stop <= start:
-        raise CurvsliceError(f"--{label} needs START < STOP and an integer COUNT >= 2")
+        raise CurvsliceError(f"--{label} needs START < STOP (mm) and an integer COUNT >= 2, got {start:g} {stop:g} {count:g}")
+    check_budget(f"--{label}: probe points along the axis", count, MAX_PROBES, "probe a coarser grid")
     return np.linspace(start, stop, int(count))
 
 
 def run_routine(args: argparse.Namespace) -> int:
+    xs, ys = _axis(args.xs, "xs"), _axis(args.ys, "ys")
+    check_budget("--xs x --ys: probe points", len(xs) * len(ys), MAX_PROBES, "probe a coarser grid")
     cell = load_cell(args.cell)
-    args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"{args.name}.mod"
-    count = write_probe_routine(
-        path, _axis(args.xs, "xs"), _axis(args.ys, "ys"), name=args.name, probe_offset=tuple(args.probe_offset),
-        orientation=cell.orientation, signal=args.signal, tool=cell.rapid.tool, wobj=cell.rapid.wobj,
-    )
-    print(f"wrote {path}: {count} probe points, results to HOME:/probe.csv")
+    with atomic_files(args.out, protect=[Path(args.cell)] if Path(args.cell).is_file() else []) as tmp:
+        count = write_probe_routine(
+            tmp / f"{args.name}.mod", xs, ys, name=args.name, probe_offset=tuple(args.probe_offset),
+            orientation=cell.orientation, signal=args.signal, tool=cell.rapid.tool, wobj=cell.rapid.wobj,
+        )
+    print(f"wrote {args.out / f'{args.name}.mod'}: {count} probe points, results to HOME:/probe.csv")
     return 0
 
 

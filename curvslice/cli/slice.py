@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from pathlib import Path
 
 import numpy as np
 
 from curvslice.errors import CurvsliceError
+from curvslice.executors import open_executor
 from curvslice.pipeline import STAGE_NAMES, Settings, read_report, run as run_pipeline, settings_of
+from curvslice.validate import count, number
 
 DESCRIPTION = (
     "Decompose a solid into curved, support-free, accessible layers (thesis §3.4), cover them with "
@@ -33,11 +36,18 @@ def _flag(f: dataclasses.Field) -> str:
 
 
 def _type(f: dataclasses.Field):
-    """argparse type of a Settings field (from its default, or its annotation when the default is None)."""
+    """argparse type of a Settings field: finite and in the field's range for numbers (checked while
+    parsing, before any stage runs), a shipped name or JSON file for the workcell, text otherwise."""
+    m = f.metadata
     if f.name == "robot":
         return _workcell_arg
-    kind = type(f.default) if f.default is not None else {"float | None": float, "int | None": int}.get(f.type, str)
-    return kind
+    if "lo" not in m:
+        return str
+    unit = "degrees" if m.get("degrees") else m["unit"]
+    lo, hi = (float(np.degrees(m["lo"])), float(np.degrees(m["hi"]))) if m.get("degrees") else (m["lo"], m["hi"])
+    if isinstance(f.default, int) or f.type == "int | None":
+        return count(unit or f.name.replace("_", " "), lo=lo, hi=hi)
+    return number(unit, lo=lo, hi=hi)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -67,10 +77,22 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
             _flag(f), dest=f.name, type=_type(f), choices=m.get("choices"), default=argparse.SUPPRESS,
             metavar=None if m.get("choices") else (unit.upper().replace("/", "_") or f.name.upper()) if unit else None,
             help=m["help"] + (f", {unit}" if unit and not shown else "") + shown)
+    p.add_argument("--no-verify", action="store_true", help="skip the independent re-check of the written folder "
+                   "(`curvslice verify`); by default a failed check makes the exit status 1")
+    add_execution_arguments(p)
     p.add_argument("--quiet", action="store_true", help="no progress bars or summary lines")
     p.add_argument("--preview", action="store_true", help="also write preview.png (layers by print order, cut-away; tool-paths of one layer)")
     p.add_argument("--preview-layer", type=int, help="layer whose tool-paths preview.png shows (default: the middle one)")
     p.set_defaults(run=run)
+
+
+def add_execution_arguments(p: argparse.ArgumentParser) -> None:
+    """``--workers`` / ``--scheduler``: where the per-layer tasks run (never what they compute)."""
+    g = p.add_argument_group("execution (Dask; the results are the same)").add_mutually_exclusive_group()
+    g.add_argument("--workers", type=int, metavar="N", help="run per-layer tasks on a local Dask cluster of N "
+                   "single-threaded worker processes (default: in this process)")
+    g.add_argument("--scheduler", metavar="ADDRESS", help="run them on an existing Dask cluster, e.g. "
+                   "tcp://host:8786 (`dask scheduler` + `dask worker`, Kubernetes, SLURM...)")
 
 
 def _workcell_arg(text: str) -> str:
@@ -111,11 +133,22 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and settings.robot is not None and args.stages is None:
         until = "robot"  # asking for a robot on resume means planning it
     after = _preview(args) if args.preview else None
-    run_pipeline(model, settings, until=until, out=out, resume=args.resume, force=args.force, quiet=args.quiet,
-                 after=after)
+    with open_executor(args.workers, args.scheduler) as executor:
+        run_pipeline(model, settings, until=until, out=out, resume=args.resume, force=args.force, quiet=args.quiet,
+                     after=after, executor=executor)
     if not args.quiet:
         print(f"wrote {out}")
-    return 0
+    if args.no_verify:
+        return 0
+    from curvslice.verify import verify_outdir
+
+    failed = [c for c in verify_outdir(out) if not c.passed]
+    for c in failed:
+        print(f"curvslice slice: verify FAILED: {c.stage} / {c.name}: {c.value} {c.detail}".rstrip(), file=sys.stderr)
+    if failed:
+        print(f"curvslice slice: {out} was written but fails {len(failed)} check(s) of `curvslice verify`",
+              file=sys.stderr)
+    return 1 if failed else 0
 
 
 def _preview(args: argparse.Namespace):

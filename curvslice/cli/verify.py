@@ -20,7 +20,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     results = verify_outdir(args.outdir)
     if args.json:
-        print(json.dumps([asdict(c) for c in results], indent=2))
+        print(json.dumps([asdict(c) for c in results], indent=2, default=str))
     else:
         print(format_table(results))
     failed = [c for c in results if not c.passed]

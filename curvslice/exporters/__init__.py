@@ -11,56 +11,13 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from curvslice.errors import CurvsliceError
-from curvslice.gcode import Event
-
-
-@dataclass
-class RobotPath:
-    """A Cartesian tool path in the robot's (work-object) frame, ready for a program writer.
-
-    Row i is the straight move *to* ``positions[i]``; ``quaternions`` (w, x, y, z, unit) give the
-    tool orientation there; ``speed`` is the TCP speed of the move (mm/s); ``extrusion`` the
-    filament (mm) fed on it, negative for a retraction. ``events`` (dwell, temperatures, fans …)
-    happen before the move ``event.index``.
-    """
-
-    positions: np.ndarray  # (N, 3) mm
-    quaternions: np.ndarray  # (N, 4) w, x, y, z
-    speed: np.ndarray  # (N,) mm/s
-    extrusion: np.ndarray  # (N,) mm filament
-    tool: np.ndarray  # (N,) int extruder index
-    layer: np.ndarray  # (N,) int layer number (1-based)
-    line: np.ndarray  # (N,) int source line (0 = none)
-    home: np.ndarray  # (N,) bool: a homing move (joint move allowed)
-    events: list[Event] = field(default_factory=list)
-
-    def __len__(self) -> int:
-        return len(self.positions)
-
-    @property
-    def extruding(self) -> np.ndarray:
-        """(N,) bool: material is deposited on the move."""
-        return self.extrusion > 0
-
-    @property
-    def retracted(self) -> np.ndarray:
-        """(N,) bool: filament is retracted after the move (a negative E until the next positive E)."""
-        sign = np.sign(self.extrusion)
-        idx = np.maximum.accumulate(np.where(sign != 0, np.arange(len(sign)), -1))
-        return np.where(idx >= 0, sign[np.maximum(idx, 0)] < 0, False)
-
-    def events_at(self) -> dict[int, list[Event]]:
-        """Events grouped by the move index they precede (index N = after the last move)."""
-        grouped: dict[int, list[Event]] = {}
-        for ev in self.events:
-            grouped.setdefault(ev.index, []).append(ev)
-        return grouped
+from curvslice.robot_path import Event, RobotPath
+from curvslice.validate import require_finite
 
 
 _EVENT_TEXT = re.compile(r"^event\s+(\S+)((?:\s+[A-Za-z]+=[-+0-9.eE]+)*)\s*(?:\|\s?(.*))?$")
@@ -79,6 +36,17 @@ def parse_event_text(text: str, index: int) -> Event | None:
         return None
     params = {k: float(v) for k, v in (w.split("=") for w in m[2].split())}
     return Event(index, 0, m[1], params, m[3] or "")
+
+
+def check_robot_path(robot: RobotPath, where: str) -> None:
+    """Refuse a path a controller must not run: no moves, NaN / inf anywhere, or a speed <= 0 mm/s."""
+    if len(robot) == 0:
+        raise CurvsliceError(f"{where}: the path has no moves; nothing to write")
+    require_finite(where, positions=robot.positions, quaternions=robot.quaternions, speed=robot.speed,
+                   extrusion=robot.extrusion)
+    if np.any(robot.speed <= 0):
+        row = int(np.argmax(robot.speed <= 0))
+        raise CurvsliceError(f"{where}: speed {robot.speed[row]:g} mm/s at row {row} is not positive")
 
 
 def output_switches(*states: np.ndarray) -> np.ndarray:

@@ -13,8 +13,9 @@ import re
 from pathlib import Path
 
 from curvslice import flow
-from curvslice.cell import Syringe
+from curvslice.cell.cells import Syringe
 from curvslice.errors import CurvsliceError
+from curvslice.validate import require_finite
 
 _BRANCH = re.compile(r"else if \(([^)]*)\)\s*\{\s*//\s*Extruder (\d+), Speed (\d+)\s*\n\s*E\d+\.setSpeed\(([-+0-9.eE]+)\)")
 _CONDITION = re.compile(r"IN(\d+) == (HIGH|LOW)")
@@ -36,6 +37,8 @@ def pattern_steps(patterns: list[tuple[int, float]], syringe: Syringe) -> list[f
 
 def write_accelstepper_sketch(path: Path, patterns: list[tuple[int, float]], bits: int, syringe: Syringe) -> None:
     """Write the ``.ino`` sketch decoding ``bits`` input pins into the patterns' stepper speeds."""
+    require_finite("Arduino sketch writer", speed=[s for _, s in patterns] or [0.0],
+                   syringe=[syringe.nozzle_to_syringe_radius, syringe.inch_per_step, syringe.max_steps_per_second])
     if bits > len(syringe.input_pins):
         raise CurvsliceError(f"{bits} signal lines needed but only {len(syringe.input_pins)} Arduino input pins listed")
     tools = sorted({t for t, _ in patterns}) or [0]

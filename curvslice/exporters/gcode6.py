@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.exporters import fixed
+from curvslice.validate import require_finite
 
 _WORD = re.compile(r"(nX|nY|nZ|[XYZEF])\s*([-+]?(?:\d+\.?\d*|\.\d+))")  # no exponents: X10E5 is X10 E5
 _MARK = re.compile(r"^;\s*(LAYER|PATH)\s*:\s*(-?\d+)")
@@ -43,6 +44,7 @@ def write_gcode6(
     fee = np.asarray(feed, dtype=np.float64).ravel()
     pid = np.asarray(path_id).astype(np.int64).ravel()
     lay = np.asarray(layer).astype(np.int64).ravel()
+    require_finite(f"extended G-code writer ({Path(path).name})", positions=pos, normals=nrm, extrusion=ext, feed=fee)
     n = len(pos)
     if not all(len(a) == n for a in (nrm, ext, fee, pid, lay)):
         raise ValueError("write_gcode6: positions, normals, extrusion, feed, path_id and layer differ in length")

@@ -3,7 +3,7 @@
 Columns: ``layer, path, index, t, x, y, z, nx, ny, nz, q1 … q6, segment, extruding`` — the
 waypoint's layer and path id and its row in ``toolpaths.npz``, the time (s), the deposition point
 (mm) and the realized tool orientation in the model frame (the tool-path's unless the waypoint
-needed a bounded axis deviation, see :func:`curvslice.motion.deviate_axes`), the joint angles (rad), the motion segment (a new
+needed a bounded axis deviation, see :func:`curvslice.ladder.deviate_axes`), the joint angles (rad), the motion segment (a new
 value starts a new smooth motion after a disconnection, Fig. 3.11b) and whether the extruder runs
 while moving to the row (0/1).
 """
@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.errors import CurvsliceError
+from curvslice.validate import require_finite
 
 COLUMNS = ("layer", "path", "index", "t", "x", "y", "z", "nx", "ny", "nz",
            "q1", "q2", "q3", "q4", "q5", "q6", "segment", "extruding")
@@ -34,6 +35,7 @@ def write_joints_csv(
     extruding: np.ndarray,
 ) -> None:
     """Write the rows (N of each array; positions/normals/q with 3/3/6 columns)."""
+    require_finite(f"joints CSV writer ({Path(path).name})", t=t, positions=positions, normals=normals, q=q)
     n = len(q)
     ints = np.column_stack([layer, path_id, index]).astype(np.int64)
     with open(path, "w") as f:

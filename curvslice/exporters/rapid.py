@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from curvslice.cell import RapidIO
+from curvslice.cell.cells import RapidIO
 from curvslice.errors import CurvsliceError
 from curvslice.exporters import (
-    RobotPath,
     chunks,
+    check_robot_path,
     clean_outdir,
     event_text,
     fixed,
@@ -30,7 +30,8 @@ from curvslice.exporters import (
     read_joint_rows,
     relative_times,
 )
-from curvslice.gcode import Event
+from curvslice.robot_path import Event, RobotPath
+from curvslice.validate import require_finite
 
 _IDENT = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,19}")
 _NUM = r"[-+0-9.eE]+"
@@ -55,6 +56,10 @@ def check_identifier(name: str) -> str:
             f"program name {name!r} is not usable in RAPID: use a letter then letters, digits or _ (≤ 20 characters)"
         )
     return name
+
+
+#: The module files a split program writes (glob): an earlier, longer split's extras are stale.
+SPLIT_FILES = "{name}_mod*.mod"
 
 
 def write_main_module(
@@ -118,7 +123,7 @@ def write_rapid_joints(
     dt = relative_times(t)
     deg = np.degrees(q)
     outdir = Path(outdir)
-    clean_outdir(outdir, f"{name}_mod*.mod")
+    clean_outdir(outdir, SPLIT_FILES.format(name=name))
     n = len(q)
     # stop after the untimed approach, where the next row switches the extruder or starts a new
     # segment, and where a module ends
@@ -234,6 +239,7 @@ def write_rapid(outdir: Path, robot: RobotPath, io: RapidIO, *, name: str = "cur
     The filament of each move is kept as a trailing ``! E…`` comment.
     """
     check_identifier(name)
+    check_robot_path(robot, "RAPID writer")
     outdir = Path(outdir)
     n = len(robot)
     states = _output_states(robot, io)
@@ -242,9 +248,9 @@ def write_rapid(outdir: Path, robot: RobotPath, io: RapidIO, *, name: str = "cur
     quats = robot.quaternions / np.linalg.norm(robot.quaternions, axis=1, keepdims=True)
     events = robot.events_at()
     stop = output_switches(*(v for _, v in states))
-    stop[:-1] |= [any(ev.code == "G4" for ev in events.get(i + 1, [])) for i in range(n - 1)]
+    stop[:-1] |= np.array([any(ev.code == "G4" for ev in events.get(i + 1, [])) for i in range(n - 1)], bool)
     conf = ",".join(str(int(c)) for c in io.robconf)
-    clean_outdir(outdir, f"{name}_mod*.mod")
+    clean_outdir(outdir, SPLIT_FILES.format(name=name))
 
     def event_lines(i: int) -> list[str]:
         return [f"    WaitTime \\InPos, {fixed(ev.params['seconds'], 3)};" if ev.code == "G4" else f"    ! {event_text(ev)}"
@@ -329,3 +335,53 @@ def read_rapid(paths: Sequence[Path], io: RapidIO = RapidIO()) -> dict[str, obje
         "extruding": np.asarray(ext, bool),
         "events": events,
     }
+
+
+def write_probe_routine(
+    path: str | Path,
+    xs: np.ndarray,
+    ys: np.ndarray,
+    *,
+    name: str = "BedProbe",
+    probe_offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    orientation: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 0.0),
+    signal: str = "diProbe",
+    tool: str = "tool0",
+    wobj: str = "wobj0",
+    clearance: float = 20.0,
+    depth: float = 5.0,
+    csv_name: str = "HOME:/probe.csv",
+) -> int:
+    """Write a RAPID module probing the lattice ``xs`` × ``ys`` (seed 004 Appendix 9); returns the count.
+
+    For each point (row by row, serpentine) the nozzle moves ``clearance`` above the target with
+    the probe over the grid point (``probe_offset`` = probe tip − nozzle tip), searches down to
+    ``depth`` below z = 0 with ``SearchL \\Stop`` until ``signal`` rises, retracts, and appends the
+    touched bed point (search position + ``probe_offset``) to ``csv_name`` as ``x,y,z``.
+    """
+    xs = np.asarray(xs, float)
+    ys = np.asarray(ys, float)
+    require_finite(f"RAPID probe routine writer ({Path(path).name})", xs=xs, ys=ys, probe_offset=probe_offset,
+                   orientation=orientation, clearance=[clearance], depth=[depth])
+    q = np.asarray(orientation, float)
+    q = q / np.linalg.norm(q)
+    quat = ",".join(f"{v:.9f}" for v in q)
+    ox, oy, oz = probe_offset
+    order = [(i, j) for j in range(len(ys)) for i in (range(len(xs)) if j % 2 == 0 else reversed(range(len(xs))))]
+    lines = [f"MODULE {name}", "  VAR iodev probelog;", "  VAR robtarget touched;"]
+    for k, (i, j) in enumerate(order, start=1):
+        x, y = fixed(xs[i] - ox, 3), fixed(ys[j] - oy, 3)
+        lines.append(f"  CONST robtarget c{k} := [[{x},{y},0.0],[{quat}],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];")
+    where = f"{tool}\\WObj:={wobj}"
+    lines += [f"  PROC {name}()", f'    Open "{csv_name}", probelog \\Write;', '    Write probelog, "x,y,z";']
+    for k in range(1, len(order) + 1):
+        lines += [
+            f"    MoveL Offs(c{k},0,0,{fixed(clearance, 3)}), v50, fine, {where};",
+            f"    SearchL \\Stop, {signal}, touched, Offs(c{k},0,0,{fixed(-depth, 3)}), v1, {where};",
+            f"    Write probelog, NumToStr(touched.trans.x + {fixed(ox, 4)},4) + \",\" + "
+            f"NumToStr(touched.trans.y + {fixed(oy, 4)},4) + \",\" + NumToStr(touched.trans.z + {fixed(oz, 4)},4);",
+            f"    MoveL Offs(c{k},0,0,{fixed(clearance, 3)}), v10, fine, {where};",
+        ]
+    lines += ["    Close probelog;", "  ENDPROC", "ENDMODULE"]
+    Path(path).write_text("\n".join(lines) + "\n")
+    return len(order)

@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from curvslice.cell import UrIO
+from curvslice.cell.cells import UrIO
 from curvslice.errors import CurvsliceError
 from curvslice.exporters import (
-    RobotPath,
+    check_robot_path,
     clean_outdir,
     event_text,
     fixed,
@@ -31,7 +31,7 @@ from curvslice.exporters import (
     read_joint_rows,
     relative_times,
 )
-from curvslice.gcode import Event
+from curvslice.robot_path import Event, RobotPath
 
 _NUM = r"[-+0-9.eE]+"
 _JOINT_MOVE = re.compile(rf"^\s*(servoj|movej)\(\[([^\]]*)\](?:.*?\bt=({_NUM}))?")
@@ -43,6 +43,10 @@ _COMMENT_NUMBER = re.compile(rf"^\s*#\s*(t_start|segment)\s+({_NUM})")
 
 #: Lines a file spends outside its rows: def, part comment, final output reset, end.
 _FILE_OVERHEAD = 4
+
+
+#: The script files a split program writes (glob): an earlier, longer split's extras are stale.
+SPLIT_FILES = "{name}_[0-9][0-9][0-9].script"
 
 
 def _check_name(name: str) -> str:
@@ -61,7 +65,7 @@ def _write_parts(
     if max_lines < 4 + _FILE_OVERHEAD:
         raise CurvsliceError(f"max_lines={max_lines} leaves no room for motion lines (need at least 8)")
     outdir = Path(outdir)
-    clean_outdir(outdir, f"{name}_[0-9][0-9][0-9].script")
+    clean_outdir(outdir, SPLIT_FILES.format(name=name))
     files: list[list[str]] = []
     body: list[str] = []
     for i in range(n):
@@ -150,6 +154,7 @@ def write_urscript(
     The extruder output follows ``robot.extruding``; ``io.retract_output`` (if set) is high while
     the filament is retracted. Dwell (G4) becomes ``sleep``; other events become comments.
     """
+    check_robot_path(robot, "URScript writer")
     outputs = [(io.extruder_output, robot.extruding)]
     if io.retract_output is not None:
         outputs.append((io.retract_output, robot.retracted))

@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from curvslice.cell import VplusIO
+from curvslice.cell.cells import VplusIO
 from curvslice.errors import CurvsliceError
-from curvslice.exporters import RobotPath, compact, event_text, fixed, parse_event_text
-from curvslice.gcode import Event
+from curvslice.exporters import check_robot_path, compact, event_text, fixed, parse_event_text
+from curvslice.robot_path import Event, RobotPath
 
 _SPEED = re.compile(r"^\s*SPEED\s+([-+0-9.]+)\s+MMPS\s+ALWAYS", re.IGNORECASE)
 _MOVE = re.compile(r"^\s*MOVES?\s+TRANS\(([^)]*)\)", re.IGNORECASE)
@@ -100,6 +100,7 @@ def write_vplus(
     """Second pass: the V+ program. ``patterns`` comes from :func:`speed_inventory`."""
     if not re.fullmatch(r"[A-Za-z][A-Za-z0-9._]{0,14}", program):
         raise CurvsliceError(f"V+ program name {program!r}: use a letter then letters, digits, . or _ (≤ 15)")
+    check_robot_path(robot, "V+ writer")
     bits = signal_count(len(patterns), io)
     code_of = {p: k for k, p in enumerate(patterns, start=1)}
     ypr = zyz_degrees(robot.quaternions)

@@ -16,6 +16,7 @@ from scipy.spatial import cKDTree
 
 from curvslice import orientation as ori
 from curvslice.errors import CurvsliceError
+from curvslice.executors import Executor, InProcess
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import layer_beads
@@ -107,6 +108,23 @@ def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: f
     return np.vstack([vertices, centres]), np.vstack([f, fan]), len(small)
 
 
+@dataclass
+class LayerRings:
+    """The start-independent part of one layer's tool-paths: its cleaned surface, the bridged (maybe
+    subdivided) mesh ``v``/``f`` of the boundary distance, the iso-distance rings, the peak lines and
+    the thin-wall passes (:func:`layer_rings`); ``None`` rings when the layer has no faces."""
+
+    surface: trimesh.Trimesh
+    v: np.ndarray
+    f: np.ndarray
+    bridged: int
+    rings: list | None = None
+    lines: list = field(default_factory=list)
+    thin: list = field(default_factory=list)
+    closed: int = 0
+    top: float = 0.0
+
+
 def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
                 fill_gaps: bool = True, min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerPaths:
     """Connected-Fermat-spiral pieces covering one working surface (thesis §3.5.1), plus
@@ -117,13 +135,22 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
     (:func:`thin_passes`). Every pass is then freed of self-crossings (:func:`uncross`) and its
     bead fitted to the strip of surface it covers (:func:`fit_beads`; ``min_bead(points)`` gives
     the narrowest bead there, the local layer thickness), and widened over the slivers the fit
-    leaves past tips and corners (:func:`fill_slivers`)."""
+    leaves past tips and corners (:func:`fill_slivers`). The two halves: :func:`layer_rings` (independent
+    of ``start``, so of the other layers) and :func:`layer_pieces`."""
+    return layer_pieces(layer_rings(mesh, width, min_bead), width, start, fill_gaps, min_bead)
+
+
+def layer_rings(mesh: trimesh.Trimesh, width: float,
+                min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerRings:
+    """The part of :func:`layer_paths` that does not depend on where the previous layer ended: the
+    boundary distance (heat method), its contour rings, peak lines and thin-wall passes, and the bead
+    floor of each ring, which decides whether it is a thin loop (``min_bead``: the layer thickness, from the earlier layers)."""
     surface = clean_surface(mesh)
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, BRIDGE_HOLE * np.pi * width)
     if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > SUBDIVIDE_EDGE * width:
         v, f = trimesh.remesh.subdivide(v, f)  # finer heat step (t = h²) and contours than the voxels
     if len(f) == 0:
-        return LayerPaths(pieces=[])
+        return LayerRings(surface, v, f, bridged)
     dist = boundary_distance(v, f)
     gap = contour_gap(v, f, dist, width)
     if abs(gap - 1.0) > GAP_NOISE:
@@ -146,6 +173,17 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
         r.top, r.floor = float(bands.top[r.above]), floor_of(r.points)
     extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor_of)
     rings += extra
+    return LayerRings(surface, v, f, bridged, rings, lines, thin, closed, top)
+
+
+def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, fill_gaps: bool = True,
+                 min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerPaths:
+    """The part of :func:`layer_paths` that depends on ``start`` (where the previous layer ended): the
+    connected spirals from the rings, the beads, and the order of the pieces."""
+    if r.rings is None:
+        return LayerPaths(pieces=[])
+    surface, v, f, bridged, rings, lines, thin, closed, top = (r.surface, r.v, r.f, r.bridged, r.rings, r.lines,
+                                                               r.thin, r.closed, r.top)
     spirals, regions, splices, failed = connected_spirals(rings, width, start)
     out = LayerPaths(pieces=spirals + lines, rings=len(rings), regions=regions + len(lines) + len(thin),
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
@@ -250,80 +288,152 @@ def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, floa
     return closest, dist
 
 
+def layer_support(surface: trimesh.Trimesh) -> tuple[np.ndarray, cKDTree | None, float]:
+    """A cleaned layer as later layers stand on it (Eq. 3.3, :func:`_thickness`): its triangles, their
+    centroid tree and the largest centroid-to-corner reach (which bounds every later search)."""
+    tri = surface.triangles
+    if not len(tri):
+        return tri, None, 0.0
+    return tri, cKDTree(tri.mean(axis=1)), float(np.linalg.norm(tri - tri.mean(axis=1, keepdims=True), axis=2).max())
+
+
+def _earlier(supports: list[tuple[np.ndarray, cKDTree | None, float]], k: int, window: int) -> list:
+    """The ``window`` last non-empty layers before layer ``k`` (0-based)."""
+    return [s for s in supports[:k] if len(s[0])][-window:]
+
+
+@dataclass
+class _Prepared:
+    """The start-independent work of one layer (:func:`_prepare_layer`)."""
+
+    rings: LayerRings
+    vertex_thickness: np.ndarray
+    seconds: float
+
+
+@dataclass
+class _Folded:
+    """One layer's pieces (:func:`_fold_layer`), where it ends, its first path id, and the seconds of
+    its :func:`_prepare_layer` and :func:`_fold_layer` tasks."""
+
+    paths: LayerPaths
+    samples: list[np.ndarray]
+    cursor: np.ndarray | None
+    first_path: int
+    next_path: int
+    seconds: float
+
+
+def _prepare_layer(k: int, surfaces: list[trimesh.Trimesh], supports: list, settings: ToolpathSettings) -> _Prepared:
+    """Layer ``k``'s thickness floor and rings: independent of the other layers' paths (a parallel task)."""
+    t0 = perf_counter()
+    w, surface = settings.path_width, surfaces[k]
+    # (a floor: fewer candidate triangles than for the samples' own thickness below)
+    vertex_thickness = np.clip(_thickness(surface.vertices, _earlier(supports, k, settings.window), FLOOR_CANDIDATES)[1],
+                               settings.min_thickness * w, settings.max_thickness * w)
+    vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
+    rings = layer_rings(surface, w, lambda points: vertex_thickness[vertex_tree.query(points)[1]])
+    return _Prepared(rings, vertex_thickness, perf_counter() - t0)
+
+
+def _fold_layer(prepared: _Prepared, previous: _Folded | None, k: int, surfaces: list[trimesh.Trimesh],
+                settings: ToolpathSettings) -> _Folded:
+    """Layer ``k``'s pieces from where the previous layer ended: the sequential part of the stage."""
+    t0 = perf_counter()
+    w, surface = settings.path_width, surfaces[k]
+    cursor, next_path = (previous.cursor, previous.next_path) if previous is not None else (None, 0)
+    vertex_thickness = prepared.vertex_thickness
+    vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
+
+    def min_bead(points: np.ndarray) -> np.ndarray:  # a bead is never narrower than it is high
+        return vertex_thickness[vertex_tree.query(points)[1]]
+
+    paths = layer_pieces(prepared.rings, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
+    samples = [resample(np.c_[p, b], settings.step, WIDTH_WEIGHT, TURN_WEIGHT * w) for p, b in zip(paths.pieces, paths.widths)]
+    samples = [s for s in samples if len(s) >= 2]
+    if samples:
+        cursor = samples[-1][-1, :3]
+    return _Folded(paths, samples, cursor, next_path, next_path + len(samples), prepared.seconds + perf_counter() - t0)
+
+
+def _orient_layer(k: int, folded: _Folded, surfaces: list[trimesh.Trimesh], supports: list,
+                  settings: ToolpathSettings) -> tuple[dict[str, np.ndarray], dict[str, float], float, float]:
+    """Layer ``k``'s orientations (Eq. 3.3), thickness and beads per sample: a parallel task once its
+    pieces are known. Returns its arrays, its report row, and the seconds of its pieces and of this."""
+    t1 = perf_counter()
+    w, surface, paths, samples = settings.path_width, surfaces[k], folded.paths, folded.samples
+    tri, own_tree, _ = supports[k]
+    earlier = _earlier(supports, k, settings.window)
+    out: dict[str, np.ndarray] = {}
+    row = {"layer": k + 1, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
+           "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
+           "splices": paths.splices, "failed_splices": paths.failed_splices,
+           "closed_components": paths.closed_components, "gap_passes": paths.gap_passes,
+           "bridged_holes": paths.bridged_holes, "thin_passes": paths.thin_passes, "max_distance_mm": round(paths.max_distance, 3),
+           "samples": 0, "length_mm": 0.0}
+    if samples:
+        q = np.vstack(samples)
+        q, bead = q[:, :3], q[:, 3]
+        pid = folded.first_path + piece_labels(samples)
+        q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer
+        surface_normal = ori.surface_normals(surface, q, own_face)
+        closest, dist = _thickness(q, earlier)
+        t = ori.accumulation_directions(q, closest, surface_normal)
+        t = ori.limit_tilt(t, surface_normal, settings.max_tilt)
+        t = ori.low_pass(t, pid, settings.max_angle)
+        pos, nrm, parent, frac = ori.slerp_subdivide(q, t, pid, settings.max_angle)
+        pos, _, pos_face = ori.closest_points(pos, tri, own_tree)  # crest subdivisions onto the layer
+        # the low-pass may have tilted a sample past the limit: never into the printed side
+        nrm = ori.limit_tilt(nrm, ori.surface_normals(surface, pos, pos_face), HARD_TILT)
+        nxt = np.minimum(parent + 1, len(q) - 1)
+        thick = np.clip(dist, settings.min_thickness * w, settings.max_thickness * w)
+        row["thickness_clamped"] = int(np.sum((dist < settings.min_thickness * w) | (dist > settings.max_thickness * w)))
+        out["positions"] = pos
+        out["normals"] = nrm
+        out["layer"] = np.full(len(pos), k + 1, np.int32)
+        out["path"] = pid[parent].astype(np.int32)
+        out["thickness"] = thick[parent] + frac * (thick[nxt] - thick[parent])
+        out["bead"] = bead[parent] + frac * (bead[nxt] - bead[parent])
+        row["samples"] = len(pos)
+        row["subdivided"] = int(len(pos) - len(q))
+        row["length_mm"] = round(float(sum(np.linalg.norm(np.diff(s[:, :3], axis=0), axis=1).sum() for s in samples)), 3)
+    return out, row, folded.seconds, perf_counter() - t1
+
+
 def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings = ToolpathSettings(),
-                   progress=None) -> Toolpaths:
+                   progress=None, executor: Executor | None = None) -> Toolpaths:
     """Tool-paths, orientations and extrusion for working surfaces in print order (§3.5.1-3.5.2).
 
     Layer 1 stands on the platform top ``z = 0``; every later layer also on the ``window``
     layers before it (Eq. 3.3). ``progress`` is an optional tqdm-like object updated per layer.
+
+    Three tasks per layer on ``executor`` (default: in-process, in order): the start-independent
+    rings and thickness floor, then -- a chain, since each layer starts where the previous one ended --
+    its pieces, then its orientations; every executor gives the same arrays.
     """
-    w = settings.path_width
+    ex = executor if executor is not None else InProcess()
+    cleaned = [clean_surface(mesh) for mesh in surfaces]
+    supports = [layer_support(surface) for surface in cleaned]
+    shared = {"surfaces": ex.share(cleaned), "settings": settings}
+    shared_supports = ex.share(supports)
+    prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=1, **shared)
+                for k in range(len(cleaned))]
+    folded, previous = [], None
+    for k, p in enumerate(prepared):
+        previous = ex.submit(_fold_layer, p, previous, k, priority=2, **shared)
+        folded.append(previous)
+    oriented = [ex.submit(_orient_layer, k, f, supports=shared_supports, **shared) for k, f in enumerate(folded)]
+    layers = ex.gather(oriented, progress)
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness", "bead")}
-    earlier: list[tuple[np.ndarray, cKDTree, float]] = []
     per_layer: list[dict[str, float]] = []
     seconds = {"spirals": 0.0, "orientation": 0.0}
-    next_path, cursor = 0, None
-    for index, mesh in enumerate(surfaces, start=1):
-        t0 = perf_counter()
-        surface = clean_surface(mesh)
-        tri = surface.triangles
-        own_tree = cKDTree(tri.mean(axis=1)) if len(tri) else None
-        # (a floor: fewer candidate triangles than for the samples' own thickness below)
-        vertex_thickness = np.clip(_thickness(surface.vertices, earlier[-settings.window:], FLOOR_CANDIDATES)[1],
-                                   settings.min_thickness * w, settings.max_thickness * w)
-        vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
-
-        def min_bead(points: np.ndarray) -> np.ndarray:  # a bead is never narrower than it is high
-            return vertex_thickness[vertex_tree.query(points)[1]]
-
-        paths = layer_paths(surface, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
-        samples = [resample(np.c_[p, b], settings.step, WIDTH_WEIGHT, TURN_WEIGHT * w) for p, b in zip(paths.pieces, paths.widths)]
-        samples = [s for s in samples if len(s) >= 2]
-        t1 = perf_counter()
-        row = {"layer": index, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
-               "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
-               "splices": paths.splices, "failed_splices": paths.failed_splices,
-               "closed_components": paths.closed_components, "gap_passes": paths.gap_passes,
-               "bridged_holes": paths.bridged_holes, "thin_passes": paths.thin_passes, "max_distance_mm": round(paths.max_distance, 3),
-               "samples": 0, "length_mm": 0.0}
-        if samples:
-            q = np.vstack(samples)
-            q, bead = q[:, :3], q[:, 3]
-            pid = next_path + piece_labels(samples)
-            next_path += len(samples)
-            cursor = q[-1]
-            q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer
-            surface_normal = ori.surface_normals(surface, q, own_face)
-            closest, dist = _thickness(q, earlier[-settings.window:])
-            t = ori.accumulation_directions(q, closest, surface_normal)
-            t = ori.limit_tilt(t, surface_normal, settings.max_tilt)
-            t = ori.low_pass(t, pid, settings.max_angle)
-            pos, nrm, parent, frac = ori.slerp_subdivide(q, t, pid, settings.max_angle)
-            pos, _, pos_face = ori.closest_points(pos, tri, own_tree)  # crest subdivisions onto the layer
-            # the low-pass may have tilted a sample past the limit: never into the printed side
-            nrm = ori.limit_tilt(nrm, ori.surface_normals(surface, pos, pos_face), HARD_TILT)
-            nxt = np.minimum(parent + 1, len(q) - 1)
-            thick = np.clip(dist, settings.min_thickness * w, settings.max_thickness * w)
-            row["thickness_clamped"] = int(np.sum((dist < settings.min_thickness * w) | (dist > settings.max_thickness * w)))
-            out["positions"].append(pos)
-            out["normals"].append(nrm)
-            out["layer"].append(np.full(len(pos), index, np.int32))
-            out["path"].append(pid[parent].astype(np.int32))
-            out["thickness"].append(thick[parent] + frac * (thick[nxt] - thick[parent]))
-            out["bead"].append(bead[parent] + frac * (bead[nxt] - bead[parent]))
-            row["samples"] = len(pos)
-            row["subdivided"] = int(len(pos) - len(q))
-            row["length_mm"] = round(float(sum(np.linalg.norm(np.diff(s[:, :3], axis=0), axis=1).sum() for s in samples)), 3)
-        if len(tri):
-            # the reach bounds every later search of this layer (_thickness): computed once
-            earlier.append((tri, own_tree, float(np.linalg.norm(tri - tri.mean(axis=1, keepdims=True), axis=2).max())))
-        t2 = perf_counter()
-        seconds["spirals"] += t1 - t0
-        seconds["orientation"] += t2 - t1
-        row["seconds"] = round(t2 - t0, 3)
+    for arrays, row, spirals_s, orient_s in layers:
+        for name, values in arrays.items():
+            out[name].append(values)
+        seconds["spirals"] += spirals_s
+        seconds["orientation"] += orient_s
+        row["seconds"] = round(spirals_s + orient_s, 3)
         per_layer.append(row)
-        if progress is not None:
-            progress.update(1)
     cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("positions", "normals") else 0)) for k, v in out.items()}
     path = cat["path"].astype(np.int32)
     bead = np.maximum(cat["bead"], cat["thickness"]) if len(path) else np.zeros(0)

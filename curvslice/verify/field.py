@@ -7,7 +7,9 @@ Recomputed from the file alone with scipy's ConvexHull, sharing no code with the
 * support (Constraint 1): layer-1 voxels sit on the platform top z = 0, every voxel of layer
   l > 1 has an AM-stable neighbour (18-neighbourhood) in a layer < l;
 * accessibility (Constraint 2): no voxel of layer l+1 is inside C(layers ≤ l ∪ T) by ε or more;
-* missed voxels (G = 0 on an occupied voxel), reported, not a violation.
+* missed voxels (G = 0 on an occupied voxel): material that will not be printed. A few are inherent to
+  some shapes (the thesis misses 511 of 77k voxels, 0.7 %, on fertility, Table 3.1); more than
+  :data:`MISSED_SHARE` of the model is a failed result (e.g. a body floating above the platform).
 """
 
 from __future__ import annotations
@@ -22,6 +24,9 @@ from curvslice.verify import Check
 #: ε (voxel widths) assumed for files written before ``eps`` was stored.
 DEFAULT_EPS = 1.0
 SURFACE_SAMPLES = 20_000
+#: Largest share of H̄ that may stay unprinted (missed) before the field check fails: above the
+#: thesis's own worst case (fertility, 0.66 %, Table 3.1) and the authors' C++ here (0.51 %).
+MISSED_SHARE = 0.01
 
 
 def _asn_offsets() -> np.ndarray:
@@ -125,6 +130,8 @@ def checks(outdir: Path) -> list[Check] | None:
     bad, deepest = accessibility_violations(growing, origin, w, platform, eps)
     out.append(Check(s, f"accessibility (ε = {eps:g} w)", len(bad) == 0, f"{len(bad)} inside earlier fronts",
                      f"deepest voxel {deepest / w:+.2f} w beneath its front"))
-    missed = int((occupied & (growing == 0)).sum())
-    out.append(Check(s, "missed voxels", True, f"{missed} of {int(occupied.sum())}"))
+    missed, n = int((occupied & (growing == 0)).sum()), int(occupied.sum())
+    out.append(Check(s, "missed voxels", missed <= MISSED_SHARE * n, f"{missed} of {n}",
+                     f"at most {MISSED_SHARE:.0%} tolerated (material the method cannot reach support-free; the thesis's "
+                     "fertility: 511 of 77k)"))
     return out

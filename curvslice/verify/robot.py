@@ -89,6 +89,16 @@ def checks(outdir: Path) -> list[Check] | None:
     top = float(np.nanmax(speed[inside])) if inside.any() else 0.0
     out.append(Check(STAGE, "joint speed within segments", top <= cell.max_joint_speed * (1 + 1e-6),
                      f"{top:.4f} rad/s", f"max ‖Δq‖∞/Δt inside motion segments, ξ = {cell.max_joint_speed} rad/s"))
+    acc, jerk = _local_derivatives(q, t, seg)
+    for name, value, bound in (("acceleration", acc, cell.max_joint_acceleration), ("jerk", jerk, cell.max_joint_jerk)):
+        ratio = np.abs(value) / np.asarray(bound, float)
+        over = int((ratio > 1 + 1e-6).any(axis=1).sum())
+        top = np.abs(value).max(axis=0) if n else np.zeros(6)
+        unit = "rad/s²" if name == "acceleration" else "rad/s³"
+        out.append(Check(STAGE, f"joint {name} within limits", over == 0,
+                         f"{over} rows over; max {', '.join(f'{v:.3g}' for v in top)} {unit}",
+                         f"Eq. 4.7-4.10 at every row inside its segment vs the workcell's "
+                         f"{', '.join(f'{v:g}' for v in bound)} {unit}"))
     max_step = float(np.abs(np.diff(q, axis=0))[inside].max()) if inside.any() else 0.0
     out.append(Check(STAGE, "max joint step in a segment", True, f"{max_step:.4f} rad",
                      f"{int(seg.max()) + 1 if n else 0} motion segments"))
@@ -96,6 +106,33 @@ def checks(outdir: Path) -> list[Check] | None:
     out.append(_collision_check(outdir, robot, cell, rows))
     out.extend(_program_checks(outdir, rows))
     return out
+
+
+def _local_derivatives(q: np.ndarray, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """q̈ and q⃛ (n, 6) at every row from the degree-4 polynomial through the 5 nearest rows of its
+    segment (centred where it can be; all of a shorter segment's rows), Eq. 4.7-4.10: the
+    polynomial's coefficients are solved for directly (independent of the planner's operators)."""
+    n = len(q)
+    acc, jerk = np.zeros((n, 6)), np.zeros((n, 6))
+    if n == 0:
+        return acc, jerk
+    change = np.flatnonzero(seg[1:] != seg[:-1]) + 1
+    starts, ends = np.r_[0, change], np.r_[change, n]
+    first = np.repeat(starts, ends - starts)
+    length = np.repeat(ends - starts, ends - starts)
+    for k in range(2, 6):
+        rows = np.flatnonzero(np.minimum(length, 5) == k)
+        if len(rows) == 0 or k < 3:
+            continue
+        lo = np.clip(rows - 2, first[rows], first[rows] + length[rows] - k)
+        idx = lo[:, None] + np.arange(k)
+        h = (t[idx[:, -1]] - t[idx[:, 0]]) / (k - 1)
+        tau = (t[idx] - t[rows, None]) / h[:, None]
+        coef = np.linalg.solve(tau[..., None] ** np.arange(k), q[idx])  # (rows, k, 6)
+        acc[rows] = 2 * coef[:, 2] / h[:, None] ** 2
+        if k >= 4:
+            jerk[rows] = 6 * coef[:, 3] / h[:, None] ** 3
+    return acc, jerk
 
 
 def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> Check:

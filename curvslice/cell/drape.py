@@ -28,12 +28,16 @@ import trimesh
 from shapely.geometry import LineString, MultiPolygon, Polygon
 
 from curvslice import flow
-from curvslice.cell import Cell, tool_quaternions
+from curvslice.cell.cells import Cell, tool_quaternions
 from curvslice.errors import CurvsliceError
-from curvslice.exporters import RobotPath
+from curvslice.robot_path import RobotPath
+from curvslice.validate import check_budget
 
 #: Seed 000 Eq. 3-1: the moulded platform, z(r) = -3.309e-8 r⁴ + 2.084e-21 r³ - 0.002343 r² - 4.481e-17 r + 149.6.
 BROOKS_PLATFORM = (-3.309e-8, 2.084e-21, -0.002343, -4.481e-17, 149.6)
+
+#: Most path samples a design may need (contours + fills): about 0.5 GB through projection and writers.
+MAX_SAMPLES = 5_000_000
 
 _CURVES = {"LINE", "ARC", "CIRCLE", "ELLIPSE", "SPLINE", "LWPOLYLINE", "POLYLINE"}
 
@@ -78,7 +82,8 @@ def read_dxf(path: str | Path, *, layers: list[str] | None = None, tolerance: fl
 
     Lines, arcs, circles, ellipses, splines and (LW)polylines are read, block references exploded.
     Other entities (text, hatches, dimensions) are an error when ``strict`` — the seed silently
-    left them out of the print — else skipped.
+    left them out of the print — else skipped. The tolerance grows to 1e-7 of the design's extent,
+    so a huge drawing (a circle of radius 1e9) flattens to a few thousand points, not millions.
     """
     path = Path(path)
     if not path.is_file():
@@ -89,8 +94,14 @@ def read_dxf(path: str | Path, *, layers: list[str] | None = None, tolerance: fl
         raise CurvsliceError(f"{path}: not a readable DXF file ({exc})") from None
     skipped: list[str] = []
     curves = []
-    for e in _entities(doc.modelspace(), set(layers) if layers else None, skipped):
-        pts = np.array([(v.x, v.y) for v in ezdxf.path.make_path(e).flattening(tolerance)], float)
+    paths = [ezdxf.path.make_path(e) for e in _entities(doc.modelspace(), set(layers) if layers else None, skipped)]
+    corners = np.array([(v.x, v.y) for p in paths for v in p.control_vertices()], float).reshape(-1, 2)
+    if not np.isfinite(corners).all():
+        raise CurvsliceError(f"{path}: a curve has a non-finite coordinate")
+    extent = float(np.ptp(corners, axis=0).max()) if len(corners) else 0.0
+    tolerance = max(tolerance, 1e-7 * extent)
+    for p in paths:
+        pts = np.array([(v.x, v.y) for v in p.flattening(tolerance)], float)
         if len(pts) >= 2:
             curves.append(pts)
     if skipped and strict:
@@ -296,6 +307,9 @@ def design_from_paths(
     loops = [c for c in chains if is_closed(c)]
     strokes = [c for c in chains if not is_closed(c)]
     regions = remove_overlaps(loops, overlap, min_area)
+    length = sum(float(arc_length(c)[-1]) for c in chains) + (sum(r.area for r in regions) / fill_spacing if fill else 0.0)
+    check_budget(f"drape: path samples for {length:.4g} mm of contours and fills at a {step:g} mm step",
+                 length / step, MAX_SAMPLES, "raise --step or --fill-spacing, or scale the design with --diameter")
     contours = [resample(loop, step) for r in regions for loop in region_loops(r)]
     contours += [resample(s, step) for s in strokes]
     fills = [f for r in regions for f in scanline_fill(r, fill_angle, fill_spacing, clearance, step)] if fill else []
@@ -403,6 +417,8 @@ def load_surface(spec: str) -> PolynomialSurface | MeshSurface:
             coeffs = tuple(float(c) for c in spec[5:].split(","))
         except ValueError:
             raise CurvsliceError(f"surface {spec!r}: coefficients must be numbers, e.g. poly:-0.002343,0,149.6") from None
+        if not all(math.isfinite(c) for c in coeffs):
+            raise CurvsliceError(f"surface {spec!r}: coefficients must be finite numbers")
         return PolynomialSurface(coeffs)
     path = Path(spec)
     if not path.is_file():

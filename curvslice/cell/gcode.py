@@ -17,11 +17,16 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.errors import CurvsliceError
+from curvslice.robot_path import Event
+from curvslice.validate import read_text
 
 _WORD = re.compile(r"(n[XYZ]|[A-Za-z])\s*([-+]?(?:\d+\.?\d*|\.\d+))?")  # no exponents: "X10E5" is X10 E5
 _PAREN_COMMENT = re.compile(r"\([^)]*\)")
 _LINE_NUMBER = re.compile(r"^\s*N\d+\s*")
 _CHECKSUM = re.compile(r"\*\d+\s*$")
+_NUMBERED_CHECKSUM = re.compile(r"^(\s*N\d+.*)\*(\d+)\s*(?:;.*)?$")  # RepRap host protocol: N… *cs
+#: Largest magnitude of a G-code number (mm, mm/min, filament mm): beyond it the file is not a print.
+MAX_NUMBER = 1e9
 _LAYER_MARK = re.compile(r"^\s*;\s*(?:LAYER\s*:\s*(-?\d+)|(LAYER_CHANGE))", re.IGNORECASE)
 
 _MOVE_WORDS = {"X", "Y", "Z", "E", "F", "nX", "nY", "nZ"}
@@ -46,17 +51,6 @@ EVENT_CODES: dict[str, set[str]] = {
     "M862.1": set(), "M862.2": set(), "M862.3": set(), "M862.4": set(), "M862.5": set(), "M862.6": set(),
 }
 _TEXT_CODES = {"M117", "M118", "M115", "M486", "M862.1", "M862.2", "M862.3", "M862.4", "M862.5", "M862.6"}
-
-
-@dataclass(frozen=True)
-class Event:
-    """A non-motion command, happening before move ``index`` (the count of moves read so far)."""
-
-    index: int
-    line: int
-    code: str
-    params: dict[str, float]
-    text: str
 
 
 @dataclass
@@ -85,11 +79,33 @@ class GcodeProgram:
 
 
 def _strip(raw: str) -> str:
-    """The code part of a line: no ``;`` or ``( )`` comment, line number or checksum."""
-    code = raw.split(";", 1)[0]
-    code = _PAREN_COMMENT.sub(" ", code)
+    """The code part of a line: no ``( )`` comment (which may hold a ``;``), ``;`` comment, line number
+    or checksum."""
+    code = _PAREN_COMMENT.sub(" ", raw).split(";", 1)[0]
     code = _CHECKSUM.sub("", code)
     return _LINE_NUMBER.sub("", code).strip()
+
+
+def _checksum_error(raw: str) -> str | None:
+    """For a numbered line with a checksum (``N12 G1 X5*87``), why the checksum is wrong, else None.
+
+    The checksum is the XOR of every byte before ``*`` (RepRap host protocol)."""
+    m = _NUMBERED_CHECKSUM.match(raw)
+    if not m or ";" in _PAREN_COMMENT.sub(" ", m[1]):
+        return None
+    computed = 0
+    for byte in m[1].lstrip().encode():
+        computed ^= byte
+    return None if computed == int(m[2]) else f"checksum *{m[2]} does not match the line (its bytes give *{computed})"
+
+
+def _number(text: str) -> float:
+    """A G-code number; too many digits or a magnitude above :data:`MAX_NUMBER` is an error."""
+    value = float(text)
+    if len(text) > 32 or not abs(value) <= MAX_NUMBER:
+        shown = text if len(text) <= 20 else f"{text[:12]}… ({len(text)} characters)"
+        raise ValueError(f"number {shown} is out of range (|value| <= {MAX_NUMBER:g})")
+    return value
 
 
 def _commands(code: str) -> list[tuple[str, dict[str, float | None], str]]:
@@ -108,13 +124,13 @@ def _commands(code: str) -> list[tuple[str, dict[str, float | None], str]]:
         if key in ("G", "M") or (key == "T" and not (groups and "T" in _allowed(groups[-1][0]))):
             if value is None:
                 raise ValueError(f"{key} without a number")
-            number = float(value)
+            number = _number(value)
             name = f"{key}{int(number)}" if number == int(number) else f"{key}{value}"
             groups.append((name, {}, ""))
         elif not groups:
             raise ValueError(f"parameter {key} before any command")
         else:
-            groups[-1][1][key] = None if value is None else float(value)
+            groups[-1][1][key] = None if value is None else _number(value)
     if code[pos:].strip():
         raise ValueError(f"cannot read {code[pos:].strip()!r}")
     return groups
@@ -150,7 +166,7 @@ def parse_gcode(
             raise CurvsliceError(f"{source}, line {lineno}: {message} (use --lenient to skip such lines)")
         warnings.append(f"{source}, line {lineno}: {message}; line skipped")
 
-    for lineno, raw in enumerate(text.splitlines(), start=1):
+    for lineno, raw in enumerate(text.removeprefix("\ufeff").splitlines(), start=1):
         if mark := _LAYER_MARK.match(raw):
             layer_marked = True
             layer = int(mark[1]) if mark[1] is not None else layer + 1
@@ -158,10 +174,13 @@ def parse_gcode(
         code = _strip(raw)
         if not code:
             continue
+        if problem := _checksum_error(raw):
+            fail(lineno, problem)
+            continue
         try:
             commands = _commands(code)
         except ValueError as exc:
-            fail(lineno, f"malformed G-code {code!r}: {exc}")
+            fail(lineno, f"malformed G-code {code if len(code) <= 60 else code[:60] + '…'!r}: {exc}")
             continue
         unknown = [c for c, _, _ in commands if not _known(c)]
         if unknown:
@@ -294,4 +313,4 @@ def read_gcode(path: str | Path, *, lenient: bool = False, home: tuple[float, fl
     path = Path(path)
     if not path.is_file():
         raise CurvsliceError(f"G-code file {path} does not exist")
-    return parse_gcode(path.read_text(errors="replace"), source=str(path), lenient=lenient, home=home)
+    return parse_gcode(read_text(path, "G-code"), source=str(path), lenient=lenient, home=home)

@@ -1,7 +1,6 @@
 """Print-cell description for ``curvslice convert``: how planar G-code maps onto a robot.
 
-Not to be confused with :mod:`curvslice.workcell` (the robot + nozzle + platform frames used to
-plan multi-axis motion). A *cell* here is what seeds 003 (Adept Python, V+), 004 (ABB IRB 120,
+A *cell* is what seeds 003 (Adept Python, V+), 004 (ABB IRB 120,
 RAPID) and 000 (ABB IRB 120) hard-coded in their converters: the position offset from G-code to
 robot coordinates, workspace limits, the fixed nozzle orientation, and the I/O each controller
 uses for the extruder (V+ signals and the Arduino sketch of seed 003, the speed bits and
@@ -22,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from curvslice.cell.gcode import GcodeProgram
 from curvslice.errors import CurvsliceError
-from curvslice.exporters import RobotPath
-from curvslice.gcode import GcodeProgram
+from curvslice.robot_path import RobotPath
+from curvslice.validate import Range, check_fields, read_text
 
 
 @dataclass(frozen=True)
@@ -123,11 +123,30 @@ PRESETS: dict[str, dict] = {
 }
 
 
+_POSITIVE = (0.0, None, True)
+#: Numeric ranges of the cell file's keys (lo, hi, lo excluded, unit); other numbers need only be finite.
+_RANGES: dict[type, dict[str, Range]] = {
+    Cell: {"max_speed": (*_POSITIVE, "mm/s"), "offset": (None, None, False, "mm"), "home": (None, None, False, "mm"),
+           "workspace_min": (None, None, False, "mm"), "workspace_max": (None, None, False, "mm")},
+    RapidIO: {"speed_unit": (*_POSITIVE, "mm/s per count"), "max_targets": (1, 10**6, False, "targets"),
+              "robconf": (-8, 8, False, "")},
+    VplusIO: {"signals": (1, 4096, False, "signal number"), "max_signals": (1, 64, False, "signals")},
+    Syringe: {"nozzle_to_syringe_radius": (*_POSITIVE, ""), "inch_per_step": (*_POSITIVE, "inch"),
+              "input_pins": (0, 255, False, "pin"), "motor_pins": (0, 255, False, "pin"),
+              "max_steps_per_second": (*_POSITIVE, "steps/s")},
+    UrIO: {"extruder_output": (0, 255, False, "output"), "retract_output": (0, 255, False, "output"),
+           "blend": (0.0, None, False, "mm"), "acceleration": (*_POSITIVE, "mm/s²")},
+}
+
+
 def _build(kind: type, values: dict, where: str):
     names = {f.name: f for f in dataclasses.fields(kind)}
     unknown = sorted(set(values) - set(names))
     if unknown:
         raise CurvsliceError(f"{where}: unknown key {unknown[0]!r} (valid: {', '.join(sorted(names))})")
+    sections = {"rapid", "vplus", "syringe", "urscript"} if kind is Cell else set()
+    check_fields(kind, {k: v for k, v in values.items() if k not in sections}, where, _RANGES.get(kind),
+                 infinite_ok=frozenset({"workspace_min", "workspace_max"}))
     out = {}
     for key, value in values.items():
         sub = {"rapid": RapidIO, "vplus": VplusIO, "syringe": Syringe, "urscript": UrIO}.get(key)
@@ -167,7 +186,7 @@ def load_cell(spec: str | Path) -> Cell:
     if not path.is_file():
         raise CurvsliceError(f"cell {spec!r} is neither a preset ({', '.join(PRESETS)}) nor a JSON file")
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(read_text(path, "cell file"))
     except json.JSONDecodeError as exc:
         raise CurvsliceError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
     if not isinstance(data, dict):

@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from curvslice.cell import quaternion_multiply, tool_quaternions
+from curvslice.cell.cells import quaternion_multiply, tool_quaternions
 from curvslice.errors import CurvsliceError
-from curvslice.exporters import RobotPath, fixed
+from curvslice.robot_path import RobotPath
+from curvslice.validate import check_budget, read_text
 
 
 @dataclass(frozen=True)
@@ -69,13 +70,32 @@ class HeightMap:
         return n / np.linalg.norm(n, axis=-1, keepdims=True)
 
 
+#: Probe coordinates closer than this (mm) are the same lattice line: a probing robot repeats
+#: positions to about 0.01 mm, and a probed x,y carries that jitter.
+LATTICE_TOLERANCE = 0.01
+#: Most probe points a grid may have (a 100 x 100 grid takes hours to probe already).
+MAX_PROBES = 10_000
+
+
+def _lattice_lines(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distinct lattice coordinates (the mean of each cluster within :data:`LATTICE_TOLERANCE`) and
+    the index of each value's line."""
+    order = np.argsort(values, kind="stable")
+    label = np.empty(len(values), np.intp)
+    label[order] = np.concatenate([[0], np.cumsum(np.diff(values[order]) > LATTICE_TOLERANCE)])
+    lines = np.bincount(label, weights=values) / np.bincount(label)
+    return lines, label
+
+
 def heightmap_from_points(points: np.ndarray, source: str = "probe grid") -> HeightMap:
-    """A :class:`HeightMap` from (N, 3) probe points that cover a rectangular lattice exactly once."""
+    """A :class:`HeightMap` from (N, 3) probe points that cover a rectangular lattice exactly once
+    (x and y within :data:`LATTICE_TOLERANCE` of their lattice line)."""
     pts = np.asarray(points, float)
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.isfinite(pts).all():
         raise CurvsliceError(f"{source}: expected finite rows of x, y, z")
-    xs, xi = np.unique(pts[:, 0], return_inverse=True)
-    ys, yi = np.unique(pts[:, 1], return_inverse=True)
+    check_budget(f"{source}: probe points", len(pts), MAX_PROBES, "probe a coarser grid")
+    xs, xi = _lattice_lines(pts[:, 0])
+    ys, yi = _lattice_lines(pts[:, 1])
     if len(xs) < 2 or len(ys) < 2:
         raise CurvsliceError(f"{source}: needs at least 2 distinct x and 2 distinct y values")
     count = np.zeros((len(ys), len(xs)), int)
@@ -95,7 +115,7 @@ def read_probe_csv(path: str | Path) -> HeightMap:
     if not path.is_file():
         raise CurvsliceError(f"probe file {path} does not exist")
     rows = []
-    for lineno, line in enumerate(path.read_text().splitlines(), start=1):
+    for lineno, line in enumerate(read_text(path, "probe CSV").splitlines(), start=1):
         text = line.split("#", 1)[0].strip()
         if not text:
             continue
@@ -131,51 +151,3 @@ def level_path(robot: RobotPath, hmap: HeightMap, *, reference: float = 0.0, til
         quats = quaternion_multiply(turn, quats)
         quats /= np.linalg.norm(quats, axis=1, keepdims=True)
     return dataclasses.replace(robot, positions=positions, quaternions=quats)
-
-
-def write_probe_routine(
-    path: str | Path,
-    xs: np.ndarray,
-    ys: np.ndarray,
-    *,
-    name: str = "BedProbe",
-    probe_offset: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    orientation: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 0.0),
-    signal: str = "diProbe",
-    tool: str = "tool0",
-    wobj: str = "wobj0",
-    clearance: float = 20.0,
-    depth: float = 5.0,
-    csv_name: str = "HOME:/probe.csv",
-) -> int:
-    """Write a RAPID module probing the lattice ``xs`` × ``ys`` (seed 004 Appendix 9); returns the count.
-
-    For each point (row by row, serpentine) the nozzle moves ``clearance`` above the target with
-    the probe over the grid point (``probe_offset`` = probe tip − nozzle tip), searches down to
-    ``depth`` below z = 0 with ``SearchL \\Stop`` until ``signal`` rises, retracts, and appends the
-    touched bed point (search position + ``probe_offset``) to ``csv_name`` as ``x,y,z``.
-    """
-    xs = np.asarray(xs, float)
-    ys = np.asarray(ys, float)
-    q = np.asarray(orientation, float)
-    q = q / np.linalg.norm(q)
-    quat = ",".join(f"{v:.9f}" for v in q)
-    ox, oy, oz = probe_offset
-    order = [(i, j) for j in range(len(ys)) for i in (range(len(xs)) if j % 2 == 0 else reversed(range(len(xs))))]
-    lines = [f"MODULE {name}", "  VAR iodev probelog;", "  VAR robtarget touched;"]
-    for k, (i, j) in enumerate(order, start=1):
-        x, y = fixed(xs[i] - ox, 3), fixed(ys[j] - oy, 3)
-        lines.append(f"  CONST robtarget c{k} := [[{x},{y},0.0],[{quat}],[0,0,0,0],[9E9,9E9,9E9,9E9,9E9,9E9]];")
-    where = f"{tool}\\WObj:={wobj}"
-    lines += [f"  PROC {name}()", f'    Open "{csv_name}", probelog \\Write;', '    Write probelog, "x,y,z";']
-    for k in range(1, len(order) + 1):
-        lines += [
-            f"    MoveL Offs(c{k},0,0,{fixed(clearance, 3)}), v50, fine, {where};",
-            f"    SearchL \\Stop, {signal}, touched, Offs(c{k},0,0,{fixed(-depth, 3)}), v1, {where};",
-            f"    Write probelog, NumToStr(touched.trans.x + {fixed(ox, 4)},4) + \",\" + "
-            f"NumToStr(touched.trans.y + {fixed(oy, 4)},4) + \",\" + NumToStr(touched.trans.z + {fixed(oz, 4)},4);",
-            f"    MoveL Offs(c{k},0,0,{fixed(clearance, 3)}), v10, fine, {where};",
-        ]
-    lines += ["    Close probelog;", "  ENDPROC", "ENDMODULE"]
-    Path(path).write_text("\n".join(lines) + "\n")
-    return len(order)

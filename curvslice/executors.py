@@ -1,0 +1,135 @@
+"""Where the per-layer work of a stage runs: here, in order (the default, no Dask import), or on a
+Dask cluster (``dask.distributed``: a local one of N processes, or any existing one by address).
+
+Stages see one small interface, :class:`Executor`:
+
+* ``map(fn, items, **shared)`` — ``[fn(item, **shared) for item in items]``; each shared input is
+  sent to the cluster once (as a task of its own, copied between workers), not once per task;
+  results come back in order;
+* ``share(value)`` / ``submit(fn, *args, **kwargs)`` / ``gather(futures)`` — a task graph for work
+  whose tasks depend on each other (a sequential fold next to parallel per-layer tasks): in-process,
+  ``submit`` runs the call at once and returns its value, so both executors give the same results.
+
+Tasks are retried on another worker when theirs dies (``retries``); a shared input lost with its
+workers is made again from its task. Which executor runs a stage never changes its
+result: the executor is an execution option, not a :class:`~curvslice.pipeline.Settings` field.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any
+
+from curvslice.errors import CurvsliceError
+
+#: Times a task is re-run after its worker died or it raised (a lost worker, not a bug, is the case).
+RETRIES = 3
+
+
+class InProcess:
+    """Every task runs here, at once, in submission order."""
+
+    workers = 1
+
+    def map(self, fn: Callable, items: Iterable, progress=None, **shared: Any) -> list:
+        out = []
+        for item in items:
+            out.append(fn(item, **shared))
+            if progress is not None:
+                progress.update(1)
+        return out
+
+    def share(self, value: Any) -> Any:
+        return value
+
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
+        return fn(*args, **kwargs)
+
+    def gather(self, futures: Sequence, progress=None) -> list:
+        if progress is not None:
+            progress.update(len(futures))
+        return list(futures)
+
+
+class DaskExecutor:
+    """Tasks on the workers of a ``dask.distributed`` client."""
+
+    def __init__(self, client: Any, retries: int = RETRIES):
+        self.client, self.retries = client, retries
+
+    @property
+    def workers(self) -> int:
+        return len(self.client.scheduler_info(n_workers=-1)["workers"])
+
+    def map(self, fn: Callable, items: Iterable, progress=None, **shared: Any) -> list:
+        shared = {k: self.share(v) for k, v in shared.items()}
+        futures = [self.submit(fn, item, **shared) for item in items]
+        return self.gather(futures, progress)
+
+    def share(self, value: Any) -> Any:
+        # A task that returns the value, not client.scatter: scattered data has no recipe, and the
+        # scheduler's memory manager drops broadcast replicas, so a killed worker can take the last copy
+        # and every task needing it with it. This one is sent to the scheduler once, copied from worker
+        # to worker as tasks need it, and re-run if every holder dies.
+        with warnings.catch_warnings():  # Dask's hint to scatter large objects instead: see above
+            warnings.filterwarnings("ignore", message="Sending large graph", category=UserWarning)
+            return self.client.submit(_value, value, pure=False, retries=self.retries)
+
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
+        return self.client.submit(fn, *args, retries=self.retries, pure=False, priority=priority, **kwargs)
+
+    def gather(self, futures: Sequence, progress=None) -> list:
+        if progress is not None:
+            from dask.distributed import as_completed
+
+            for _ in as_completed(futures):
+                progress.update(1)
+        return self.client.gather(list(futures))
+
+
+def _value(value: Any) -> Any:
+    return value
+
+
+Executor = InProcess | DaskExecutor
+
+
+@contextmanager
+def open_executor(workers: int | None = None, scheduler: str | None = None,
+                  retries: int = RETRIES) -> Iterator[Executor]:
+    """In-process without arguments; ``workers``: a local cluster of that many single-threaded worker
+    processes (on 127.0.0.1, no dashboard); ``scheduler``: the cluster at that address
+    (``tcp://host:8786``, e.g. of ``dask scheduler`` + ``dask worker``)."""
+    if workers is not None and scheduler is not None:
+        raise CurvsliceError("give either a number of local workers or a scheduler address, not both")
+    if workers is None and scheduler is None:
+        yield InProcess()
+        return
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        cluster = None
+        try:
+            client = Client(scheduler, timeout="20s")
+        except OSError as exc:
+            raise CurvsliceError(f"no Dask scheduler at {scheduler} ({exc})") from None
+    else:
+        if workers < 1:
+            raise CurvsliceError(f"the number of workers must be at least 1 (got {workers})")
+        import dask
+
+        # Dask sets MALLOC_TRIM_THRESHOLD_ in its workers, which pins glibc's mmap threshold at 128 KiB:
+        # every mid-size numpy temporary of a layer's task is then mapped and zero-filled anew (+30% CPU
+        # measured on the kitten's tool-paths). Workers of a short run keep glibc's default instead.
+        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                   dashboard_address=None)
+        client = Client(cluster)
+    try:
+        yield DaskExecutor(client, retries)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

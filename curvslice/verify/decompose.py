@@ -1,0 +1,125 @@
+"""Re-check of a RoboFDM decomposition folder (thesis ch. 2) from its files alone.
+
+- the parts' union equals the model (``solid.stl``) within 0.1 % of its volume, and the parts do
+  not overlap (their volumes add up to the union's);
+- each part's risky area (Eq. 2.1, base face excluded) recomputed from its mesh equals the reported
+  one, and whether every part is support-free;
+- Constraint I: the base faces (faces of a part on its base plane) of two parts never cross on a
+  stretch of the planes' common line — found by cutting each base face's triangles with the other
+  plane (trimesh), not by the polygon code that made the decomposition; sections that merely end
+  on each other's plane (cuts meeting at a junction) touch without crossing;
+- Constraint II: every base plane faces up along the root's build direction.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import manifold3d
+import numpy as np
+import trimesh
+
+from curvslice.verify import Check
+
+STAGE = "decompose"
+VOLUME_TOL = 1e-3
+SUPPORT_FREE_MM2 = 1.0
+ROOT_CONTACT_MM = 0.5  # the root's faces this close to its platform plane stand on the platform
+LINE_TOL = 0.1  # mm of shared common line that counts as an intersection
+SIDE_MM = 0.05  # a section crosses a plane when it reaches this far past it on both sides
+
+
+def _base_faces(mesh: trimesh.Trimesh, normal: np.ndarray, offset: float, root: bool) -> np.ndarray:
+    h = mesh.vertices @ normal - offset
+    near = np.all(np.abs(h[mesh.faces]) <= (ROOT_CONTACT_MM if root else 1e-2), axis=1)
+    return near if root else near & (mesh.face_normals @ normal < -0.999)
+
+
+def _overlap(a: list[tuple[float, float]], b: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    return [(max(a0, b0), min(a1, b1)) for a0, a1 in a for b0, b1 in b if min(a1, b1) > max(a0, b0)]
+
+
+def _intervals(mesh: trimesh.Trimesh, faces: np.ndarray, n: np.ndarray, c: float, point: np.ndarray,
+               direction: np.ndarray) -> list[tuple[float, float]]:
+    """Parameter intervals along the common line where the base faces ``faces`` extend to both sides
+    of the other plane (``n·x = c`` moved by ±:data:`SIDE_MM`): a section that only ends on the other
+    plane — two cuts meeting at a junction — touches it but does not cross it."""
+    return _overlap(_cut(mesh, faces, n, c + SIDE_MM, point, direction), _cut(mesh, faces, n, c - SIDE_MM, point, direction))
+
+
+def _cut(mesh: trimesh.Trimesh, faces: np.ndarray, n: np.ndarray, c: float, point: np.ndarray,
+         direction: np.ndarray) -> list[tuple[float, float]]:
+    if not faces.any():
+        return []
+    sub = mesh.submesh([np.flatnonzero(faces)], append=True)
+    segs = trimesh.intersections.mesh_plane(sub, n, n * c)
+    if len(segs) == 0:
+        return []
+    t = np.sort((segs - point) @ direction, axis=1)
+    t = t[np.argsort(t[:, 0])]
+    out: list[list[float]] = []
+    for a, b in t:
+        if out and a <= out[-1][1] + 1e-6:
+            out[-1][1] = max(out[-1][1], b)
+        else:
+            out.append([a, b])
+    return [(a, b) for a, b in out]
+
+
+def checks(outdir: Path) -> list[Check] | None:
+    outdir = Path(outdir)
+    if not (outdir / "parts.json").exists():
+        return None
+    spec = json.loads((outdir / "parts.json").read_text())
+    alpha = np.radians(spec["alpha_max_deg"])
+    root_dir = np.asarray(spec["root_direction"], float)
+    parts = spec["parts"]
+    meshes = [trimesh.load(outdir / p["file"], force="mesh") for p in parts]
+    results: list[Check] = []
+    if (outdir / "solid.stl").exists():
+        model = trimesh.load(outdir / "solid.stl", force="mesh")
+        solids = [manifold3d.Manifold(manifold3d.Mesh(vert_properties=np.asarray(m.vertices, np.float32),
+                                                      tri_verts=np.asarray(m.faces, np.uint32))) for m in meshes]
+        union = manifold3d.Manifold.batch_boolean(solids, manifold3d.OpType.Add).volume()
+        total = sum(s.volume() for s in solids)
+        err = abs(union - model.volume) / model.volume
+        results.append(Check(STAGE, "union equals model", err <= VOLUME_TOL, f"{100 * err:.4f} %",
+                             f"union {union:.1f} mm³ vs model {model.volume:.1f} mm³"))
+        over = (total - union) / model.volume
+        results.append(Check(STAGE, "parts do not overlap", over <= VOLUME_TOL, f"{100 * over:.4f} %"))
+    else:
+        results.append(Check(STAGE, "union equals model", False, "missing", "solid.stl is not in the folder"))
+    risky, mismatch = [], []
+    for k, (p, m) in enumerate(zip(parts, meshes)):
+        n, c = np.asarray(p["base_plane"]["normal"], float), float(p["base_plane"]["offset_mm"])
+        bad = (m.face_normals @ n + np.sin(alpha) < 0) & ~_base_faces(m, n, c, k == 0)
+        area = float(m.area_faces[bad].sum())
+        risky.append(area)
+        if abs(area - p["risky_area_mm2"]) > 1e-3 * max(1.0, area):
+            mismatch.append(k)
+    results.append(Check(STAGE, "risky area per part", not mismatch, ", ".join(f"{a:.1f}" for a in risky) + " mm²",
+                         f"reported differs for parts {mismatch}" if mismatch else "recomputed = reported"))
+    worst = int(np.argmax(risky))
+    results.append(Check(STAGE, "every part support-free", max(risky) <= SUPPORT_FREE_MM2,
+                         f"max {max(risky):.1f} mm²", f"part {worst} (≤ {SUPPORT_FREE_MM2} mm² counts as free)"))
+    planes = [(np.asarray(p["base_plane"]["normal"], float), float(p["base_plane"]["offset_mm"])) for p in parts]
+    crossing = []
+    for i in range(len(parts)):
+        for j in range(i + 1, len(parts)):
+            (ni, ci), (nj, cj) = planes[i], planes[j]
+            d = np.cross(ni, nj)
+            if np.linalg.norm(d) < 1e-6:
+                continue  # parallel base planes: sections can only meet if coplanar (not re-checked)
+            d /= np.linalg.norm(d)
+            point = np.linalg.lstsq(np.vstack([ni, nj]), np.array([ci, cj]), rcond=None)[0]
+            a = _intervals(meshes[i], _base_faces(meshes[i], ni, ci, i == 0), nj, cj, point, d)
+            b = _intervals(meshes[j], _base_faces(meshes[j], nj, cj, j == 0), ni, ci, point, d)
+            if any(min(a1, b1) - max(a0, b0) > LINE_TOL for a0, a1 in a for b0, b1 in b):
+                crossing.append((i, j))
+    results.append(Check(STAGE, "Constraint I (base sections apart)", not crossing, f"{len(crossing)} pairs",
+                         str(crossing) if crossing else ""))
+    down = [k for k, (n, _) in enumerate(planes[1:], start=1) if n @ root_dir <= 0]
+    results.append(Check(STAGE, "Constraint II (base planes face up)", not down, f"{len(down)} parts",
+                         str(down) if down else ""))
+    return results

@@ -1,0 +1,159 @@
+"""RoboFDM decomposition (thesis ch. 2) and nozzle placement (§2.3.1)."""
+
+from __future__ import annotations
+
+import manifold3d as m3
+import numpy as np
+import pytest
+
+from curvslice.decompose import decompose
+from curvslice.decompose.constraints import constraint_one, faces_up, sections_intersect
+from curvslice.decompose.parts import Plane, cross_section, to_trimesh
+from curvslice.decompose.placement import box_counts, brute_force_counts, platform_frames
+from curvslice.decompose.risky import risky_area, risky_faces
+
+
+def y_solid() -> m3.Manifold:
+    """A Y: a 12 mm-radius stem on the platform with two 4 mm arms leaning 50° off vertical, rooted
+    14 mm apart on its top (the arms' undersides hang along +z).
+
+    Known weakness: the coarse segmentation depends on the triangulation; the same solid united
+    as stem + foot first ends with both arms in one part (40 mm² left risky).
+    """
+    stem = m3.Manifold.cylinder(44, 12, 12, 48)
+    arm = m3.Manifold.cylinder(40, 4, 4, 32)
+    foot = m3.Manifold.cylinder(4, 12, 12, 48)  # the same radius: only the triangulation changes
+    return (foot + stem + arm.rotate((0, 50, 0)).translate((7, 0, 40))
+            + arm.rotate((0, -50, 0)).translate((-7, 0, 40))).refine_to_length(2.0)
+
+
+def test_risky_area_of_a_box_matches_eq_2_1():
+    box = to_trimesh(m3.Manifold.cube((20, 10, 5)))
+    up = np.array([0.0, 0.0, 1.0])
+    assert risky_area(box, Plane(up, 0.0), np.radians(45)) == pytest.approx(0.0)  # bottom is the base
+    assert risky_area(box, Plane(up, -1.0), np.radians(45)) == pytest.approx(200.0)  # bottom hangs
+    # tilted 40° about y the bottom hangs (n·d = -cos 40° < -sin 45°); at 50° it is self-supported
+    # but the 10 x 5 mm side facing -x hangs (n·d = -sin 50°)
+    for tilt, expected in ((40, 200.0), (50, 50.0)):
+        d = np.array([np.sin(np.radians(tilt)), 0.0, np.cos(np.radians(tilt))])
+        faces = risky_faces(box, Plane(d, -100.0), np.radians(45))
+        assert box.area_faces[faces].sum() == pytest.approx(expected)
+
+
+def test_y_solid_decomposes_into_a_standing_stem_and_two_arms():
+    solid = y_solid()
+    mesh = to_trimesh(solid)
+    up = np.array([0.0, 0.0, 1.0])
+    assert risky_area(mesh, Plane(up, 0.0), np.radians(45), platform=True) > 100.0  # not printable along +z
+    dec = decompose(mesh)
+    parts = dec.parts
+    assert len(parts) == 3
+    # the parts partition the model, keep Constraints I and II, and are all support-free
+    assert sum(p.mesh.volume for p in parts) == pytest.approx(solid.volume(), rel=1e-3)
+    assert not dec.constraint_one_violations() and not dec.constraint_two_violations()
+    assert max(p.risky_area for p in parts) < 1.0
+    # the root is the stem standing on its flat bottom; each arm tip is in its own later part
+    assert np.degrees(np.arccos(dec.root_direction @ up)) < 5.0
+    assert parts[0].mesh.bounds[0][2] == pytest.approx(0.0, abs=1e-3)
+    assert parts[0].mesh.bounds[1][2] < 50.0
+    tips = [np.array([s * 34.0, 0.0, 64.0]) for s in (-1, 1)]
+    owner = [min(range(3), key=lambda i: parts[i].mesh.nearest.on_surface([t])[1][0]) for t in tips]
+    assert sorted(owner) == [1, 2]
+    # each arm is printed from a plane leaning towards its own side
+    for i, side in zip(owner, (-1, 1)):
+        assert side * parts[i].base.normal[0] > 0.5
+
+
+def test_constraint_one_detects_crossing_base_sections():
+    """Fig. 2.6: two base planes through one block whose sections cross on the planes' common line."""
+    block = m3.Manifold.cube((20, 20, 20))
+    a = Plane(np.array([1.0, 0.0, 0.0]), 10.0)
+    b = Plane(np.array([0.0, 0.0, 1.0]), 10.0)
+    ra, rb = cross_section(block, a), cross_section(block, b)
+    assert ra.area == pytest.approx(400.0, rel=1e-3)
+    assert sections_intersect(a, ra, b, rb)
+    assert constraint_one([a, b], [ra, rb]) == [(0, 1)]
+    # an L (slab along x, wall along z): the slab's end section at x = 12 and the wall's top
+    # section at z = 14 are both crossed by the planes' common line, but neither where the other is
+    ell = m3.Manifold.cube((20, 20, 8)) + m3.Manifold.cube((8, 20, 20))
+    pa, pb = Plane(a.normal, 12.0), Plane(b.normal, 14.0)
+    assert not sections_intersect(pa, cross_section(ell, pa), pb, cross_section(ell, pb))
+    pa = Plane(a.normal, 4.0)  # through the wall instead: the two sections now cross
+    assert sections_intersect(pa, cross_section(ell, pa), pb, cross_section(ell, pb))
+    # parallel, distinct planes never meet; the same plane overlaps itself
+    assert not sections_intersect(b, cross_section(block, b), Plane(b.normal, 15.0), cross_section(block, Plane(b.normal, 15.0)))
+    assert sections_intersect(b, cross_section(block, b), b, cross_section(block, b))
+    assert faces_up(b.normal, np.array([0.0, 0.0, 1.0])) and not faces_up(-b.normal, np.array([0.0, 0.0, 1.0]))
+
+
+@pytest.mark.parametrize("robot_name", ["ur3", "ur5"])
+def test_grid_search_optimum_equals_brute_force(robot_name):
+    from curvslice.kinematics import load_robot
+    from curvslice.workcell import load_workcell
+
+    cell = load_workcell(robot_name)
+    pts = platform_frames(load_robot(robot_name), cell, 10_000, seed=1)
+    assert len(pts) > 3_000  # about half the frames face up
+    reach = box_counts(pts, box=200.0, cell=100.0)
+    idx = np.indices(reach.counts.shape).reshape(3, -1).T
+    centres = reach.origin + reach.cell * idx
+    brute = brute_force_counts(pts, centres, 200.0)
+    np.testing.assert_array_equal(brute, reach.counts.ravel())
+    centre, count = reach.best
+    assert count == brute.max()
+    np.testing.assert_allclose(centre, centres[np.argmax(brute)])
+
+
+def test_verify_flags_crossing_base_sections(tmp_path):
+    """A hand-made folder whose two base faces cross (Fig. 2.6) fails `curvslice verify`'s Constraint I."""
+    import json
+
+    from curvslice.verify.decompose import checks
+
+    boxes = [((0, 0, 0), (10, 20, 10)), ((10, 0, 0), (10, 20, 20)), ((0, 0, 10), (20, 20, 10))]
+    planes = [((0, 0, 1), 0.0), ((1, 0, 0), 10.0), ((0, 0, 1), 10.0)]
+    parts = []
+    for k, ((x, y, z), size) in enumerate(boxes):
+        to_trimesh(m3.Manifold.cube(size).translate((x, y, z))).export(tmp_path / f"part_{k:02d}.stl")
+        parts.append({"file": f"part_{k:02d}.stl", "base_plane": {"normal": list(planes[k][0]), "offset_mm": planes[k][1]},
+                      "risky_area_mm2": 0.0})
+    (tmp_path / "parts.json").write_text(json.dumps({"alpha_max_deg": 45.0, "root_direction": [0, 0, 1], "parts": parts}))
+    result = {c.name: c for c in checks(tmp_path)}
+    assert not result["Constraint I (base sections apart)"].passed
+    assert result["Constraint I (base sections apart)"].value == "1 pairs"
+    assert result["Constraint II (base planes face up)"].passed is False  # x = 10 is vertical: n·d_root = 0
+
+
+def test_cli_decompose_then_verify(tmp_path):
+    """`curvslice decompose` writes the folder contract and `curvslice verify` re-checks it."""
+    import json
+
+    from curvslice.cli import main
+
+    model = tmp_path / "y.stl"
+    to_trimesh(y_solid()).export(model)
+    out = tmp_path / "y_parts"
+    assert main(["decompose", str(model), "--out", str(out)]) == 0
+    spec = json.loads((out / "parts.json").read_text())
+    assert [p["sequence"] for p in spec["parts"]] == list(range(len(spec["parts"])))
+    assert all((out / p["file"]).exists() for p in spec["parts"])
+    assert spec["parts"][0]["parent"] is None and all(p["parent"] < p["sequence"] for p in spec["parts"][1:])
+    for p in spec["parts"]:  # T_P^E is a rigid transform whose z axis is the build direction in E
+        T = np.asarray(p["T_P_E"])
+        np.testing.assert_allclose(T[:3, :3] @ T[:3, :3].T, np.eye(3), atol=1e-9)
+    assert (out / "parts.png").exists() and (out / "report.json").exists()
+    assert main(["verify", str(out)]) == 0
+
+
+def test_cli_workcell_place_writes_a_loadable_workcell(tmp_path):
+    from curvslice.cli import main
+    from curvslice.workcell import load_workcell
+
+    out = tmp_path / "ur3.json"
+    assert main(["workcell", "place", "--robot", "ur3", "--samples", "20000", "--box", "100", "--grid", "20",
+                 "--out", str(out)]) == 0
+    cell = load_workcell(out)
+    assert cell.robot == "ur3" and out.with_suffix(".png").exists()
+    report = __import__("json").loads(out.with_suffix(".report.json").read_text())
+    np.testing.assert_allclose(cell.nozzle[:3, 3], report["nozzle_mm"], atol=1e-6)
+    assert report["frames_in_box"] > 0

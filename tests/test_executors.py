@@ -1,0 +1,108 @@
+"""Dask executors (issue 16): the same arrays whatever runs the per-layer tasks -- in this process, a
+local cluster, or a real ``dask scheduler`` + ``dask worker`` pair one of which is killed mid-run."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from curvslice.cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+TEE = ROOT / "models" / "tee.stl"
+ARGS = ["--voxel", "2", "--stages", "toolpaths", "--quiet"]
+#: Task-name prefixes of the per-layer work (working surfaces, tool-paths).
+LAYER_TASKS = ("_contour_layer", "_prepare_layer", "_fold_layer", "_orient_layer")
+
+
+def _arrays(folder: Path) -> dict[str, np.ndarray]:
+    out = {}
+    for name in ("field.npz", "toolpaths.npz"):
+        with np.load(folder / name) as z:
+            out.update({f"{name}:{k}": z[k] for k in z.files})
+    return out
+
+
+def _assert_same(a: Path, b: Path) -> None:
+    x, y = _arrays(a), _arrays(b)
+    assert x.keys() == y.keys()
+    for k in x:
+        assert x[k].shape == y[k].shape and np.array_equal(x[k], y[k]), k
+    assert len(x["toolpaths.npz:positions"]) > 100  # a real tool-path, not two empty ones
+
+
+@pytest.fixture(scope="module")
+def in_process(tmp_path_factory) -> Path:
+    """The tee sliced in a fresh interpreter, in-process; that run must not import Dask at all."""
+    out = tmp_path_factory.mktemp("inproc") / "tee"
+    code = ("import sys; from curvslice.cli import main; rc = main(sys.argv[1:]); "
+            "assert 'distributed' not in sys.modules and 'dask' not in sys.modules, 'in-process run imported Dask'; "
+            "sys.exit(rc)")
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, "-c", code, "slice", str(TEE), *ARGS, "--out", str(out)], check=True, env=env)
+    return out
+
+
+def test_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):
+    out = tmp_path / "tee2"
+    assert main(["slice", str(TEE), *ARGS, "--out", str(out), "--workers", "2"]) == 0
+    _assert_same(in_process, out)
+    # the per-layer report rows (counts, lengths) are the same too; only the timings differ
+    strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
+    reports = [json.loads((f / "report.json").read_text()) for f in (in_process, out)]
+    assert strip(reports[0]["toolpaths"]["per_layer"]) == strip(reports[1]["toolpaths"]["per_layer"])
+
+
+@pytest.mark.dask_cluster
+def test_killing_a_worker_mid_run_still_gives_the_same_arrays(in_process, tmp_path):
+    """``dask scheduler`` and two ``dask worker`` processes (no nanny: a killed worker stays dead) on
+    127.0.0.1; the slice runs through ``--scheduler``; once a worker is busy with a per-layer task it is
+    killed (SIGKILL), with whatever shared inputs and results it held. The lost tasks are re-run on the
+    survivor and the arrays are the in-process ones."""
+    from dask.distributed import Client
+
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    info = tmp_path / "scheduler.json"
+    dask = [sys.executable, "-m", "dask"]
+    procs = [subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+                               "--scheduler-file", str(info)], env=env, stderr=subprocess.DEVNULL)]
+    try:
+        deadline = time.time() + 30
+        while not info.exists() and time.time() < deadline:
+            time.sleep(0.1)
+        address = json.loads(info.read_text())["address"]
+        workers = [subprocess.Popen([*dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
+                                     "--no-nanny", "--no-dashboard", "--name", f"w{i}"], env=env,
+                                    stderr=subprocess.DEVNULL) for i in range(2)]
+        procs += workers
+        with Client(address, timeout="30s") as client:
+            client.wait_for_workers(2, timeout=30)
+            out = tmp_path / "tee"
+            run = subprocess.Popen([sys.executable, "-m", "curvslice", "slice", str(TEE), *ARGS, "--out", str(out),
+                                    "--scheduler", address], env=env)
+            procs.append(run)
+            victim = None
+            while victim is None and run.poll() is None:
+                busy = [a for a, tasks in client.processing().items()
+                        if any(str(t).startswith(LAYER_TASKS) for t in tasks)]
+                if busy:
+                    victim = client.scheduler_info()["workers"][busy[0]]["name"]
+                time.sleep(0.02)
+            assert victim is not None, "the slice ended before any per-layer task reached a worker"
+            workers[int(victim[1:])].send_signal(signal.SIGKILL)
+            assert run.wait(timeout=120) == 0
+            assert len(client.scheduler_info()["workers"]) == 1  # the killed worker did not come back
+        _assert_same(in_process, out)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.kill()
+            p.wait()

@@ -1,0 +1,166 @@
+"""Jerk stage (§4.3.2): Eq. 4.7-4.10 against Eq. 4.11 and exact polynomials, the verifier's own
+derivatives against the planner's, Algorithm 6 and the global filter on a path with injected jerk
+spikes (every row still on its waypoint by pinocchio FK), time-scaling to the limits, Ruckig moves
+against the closed-form time-optimal duration, and the verifier failing the unsmoothed graph path."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from curvslice.collision import CollisionScene
+from curvslice.exporters.joints_csv import write_robot_outputs
+from curvslice.jerk import (
+    JerkSettings,
+    Limits,
+    derivatives,
+    global_filter,
+    local_filter,
+    redundancy,
+    rest_to_rest,
+    time_scale,
+    trajectory_stage,
+    uniform_jerk,
+)
+from curvslice.kinematics import fk_reference, load_robot
+from curvslice.motion import plan_motion, plan_print, step_times
+from curvslice.verify import robot as verify_robot
+from curvslice.verify.robot import _local_derivatives
+from curvslice.workcell import load_workcell, waypoints_from_flange
+
+
+def test_eq_4_10_reduces_to_eq_4_11_on_uniform_times():
+    rng = np.random.default_rng(1)
+    q = rng.normal(size=(40, 6))
+    h = 0.037
+    t = 5.0 + h * np.arange(40)
+    _, _, jerk = derivatives(q, t, np.zeros(40, int))
+    assert np.allclose(jerk[2:-2], uniform_jerk(q, h), rtol=1e-9, atol=1e-9 * np.abs(jerk).max())
+
+
+@pytest.mark.parametrize("degree", [1, 2, 3, 4])
+def test_derivatives_exact_on_polynomials_with_non_uniform_times(degree):
+    rng = np.random.default_rng(degree)
+    n = 30
+    t = np.cumsum(rng.uniform(0.01, 0.4, n))
+    seg = np.r_[np.zeros(20, int), np.ones(10, int)]
+    c = rng.normal(size=(degree + 1, 6))  # q_j(t) = Σ c_k t^k, per joint
+    q = sum(c[k] * t[:, None] ** k for k in range(degree + 1))
+    want = [sum(np.prod(np.arange(k - r + 1, k + 1)) * c[k] * t[:, None] ** (k - r) for k in range(r, degree + 1))
+            if r <= degree else np.zeros((n, 6)) for r in (1, 2, 3)]
+    got = derivatives(q, t, seg)
+    for r in range(3):  # every row, the segments' end rows (one-sided windows) included
+        assert np.allclose(got[r], want[r], rtol=1e-6, atol=1e-6 * (1 + np.abs(want[r]).max()))
+    acc, jerk = _local_derivatives(q, t, seg)  # the verifier's independent solve
+    assert np.allclose(acc, want[1], rtol=1e-6, atol=1e-6 * (1 + np.abs(want[1]).max()))
+    assert np.allclose(jerk, want[2], rtol=1e-6, atol=1e-6 * (1 + np.abs(want[2]).max()))
+
+
+def test_verifier_and_planner_derivatives_agree_on_short_segments():
+    rng = np.random.default_rng(3)
+    seg = np.repeat(np.arange(6), [1, 2, 3, 4, 5, 9])
+    t = np.cumsum(rng.uniform(0.02, 0.3, len(seg)))
+    q = rng.normal(size=(len(seg), 6))
+    _, acc, jerk = derivatives(q, t, seg)
+    acc2, jerk2 = _local_derivatives(q, t, seg)
+    assert np.allclose(acc, acc2, rtol=1e-7, atol=1e-7 * np.abs(acc).max())
+    assert np.allclose(jerk, jerk2, rtol=1e-7, atol=1e-7 * np.abs(jerk).max())
+    assert (jerk[:6] == 0).all()  # segments of < 4 rows have no third derivative
+
+
+@pytest.fixture(scope="module")
+def dome():
+    """A spiral on a dome (tilts up to 25°) in the UR5 workcell, planned by the graph search."""
+    cell, robot = load_workcell("ur5"), load_robot("ur5")
+    m = 70
+    s = np.linspace(0, 1, m)
+    pol, az = np.radians(25) * (1 - s), 2 * np.pi * 1.5 * s
+    nor = np.stack([np.sin(pol) * np.cos(az), np.sin(pol) * np.sin(az), np.cos(pol)], 1)
+    pos = 30 * nor
+    dt = step_times(pos, 10.0, cell.min_step_time, nor, cell.tool_turn_speed)
+    motion = plan_motion(robot, cell, pos, nor, dt)
+    assert (motion.segment == 0).all()
+    return cell, robot, pos, nor, motion
+
+
+def _on_waypoints(cell, robot, q, pos, nor):
+    p, a = waypoints_from_flange(cell, fk_reference(robot, q))
+    return np.linalg.norm(p - pos, axis=1).max(), np.arccos(np.clip(np.einsum("ij,ij->i", a, nor), -1, 1)).max()
+
+
+@pytest.mark.parametrize("method", ["alg6", "global"])
+def test_injected_jerk_spikes_are_smoothed_and_rows_stay_on_their_waypoints(dome, method):
+    cell, robot, pos, nor, motion = dome
+    t, seg = motion.t, motion.segment
+    red, theta = redundancy(robot, cell, pos, nor, motion.q)
+    assert (red.branch >= 0).all()
+    rows = np.arange(len(pos))
+    smooth_z, smooth_q, _ = global_filter(red, theta, motion.q, t, seg, Limits.of(robot, cell), JerkSettings())
+    base = np.abs(derivatives(smooth_q, t, seg)[2]).max()
+    spiked = smooth_z[:, 0].copy()
+    spiked[[20, 35, 50]] += [0.25, -0.3, 0.2]  # the arm turns about the nozzle axis and back
+    q, ok = red.joints(spiked, rows, smooth_q)
+    assert ok.all()
+    before = np.abs(derivatives(q, t, seg)[2]).max()
+    assert before > 5 * base
+    limits = Limits.of(robot, cell)
+    limits.jerk = np.full(6, 1.5 * base)  # j_max between the smooth and the spiked path
+    limits.acceleration = np.full(6, 1e3)
+    if method == "alg6":
+        _, out, iterations = local_filter(red, spiked[:, None], q, t, seg, limits, JerkSettings(max_iterations=40))
+        assert 0 < iterations <= 40
+        assert np.abs(derivatives(out, t, seg)[2]).max() <= limits.jerk[0]  # Alg. 6 stops when none is over j_max
+    else:
+        _, out, _ = global_filter(red, spiked, q, t, seg, limits, JerkSettings())
+        assert np.abs(derivatives(out, t, seg)[2]).max() <= limits.jerk[0]
+    err_pos, err_axis = _on_waypoints(cell, robot, out, pos, nor)
+    assert err_pos <= 1e-6 and err_axis <= 1e-6  # x_i = f(q_i) exactly (mm, rad)
+    speed = lambda qq: (np.abs(np.diff(qq, axis=0)).max(axis=1) / np.diff(t)).max()  # noqa: E731
+    assert speed(out) <= speed(q)  # ξ is met exactly by the time-scaling (next test)
+
+
+def test_time_scaling_meets_the_limits_at_every_row(dome):
+    cell, robot, pos, nor, motion = dome
+    limits = Limits.of(robot, cell)
+    seg = np.r_[np.zeros(40, int), np.ones(30, int)]
+    t = motion.t.copy()
+    _, acc, jerk = derivatives(motion.q, t, seg)
+    assert (np.abs(jerk) > limits.jerk).any()  # the graph path is over j_max
+    new_t, rounds, left = time_scale(motion.q, t, seg, limits, JerkSettings())
+    assert left == 0 and rounds > 0
+    acc, jerk = _local_derivatives(motion.q, new_t, seg)
+    assert (np.abs(acc) <= limits.acceleration * (1 + 1e-9)).all()
+    assert (np.abs(jerk) <= limits.jerk * (1 + 1e-9)).all()
+    inside = seg[1:] == seg[:-1]
+    speed = np.abs(np.diff(motion.q, axis=0)).max(axis=1) / np.diff(new_t)
+    assert (speed[inside] <= limits.speed * (1 + 1e-9)).all()
+    assert (np.diff(new_t) >= np.diff(t) * (1 - 1e-12)).all()  # only slowed down (same E, lower feed)
+
+
+def test_rest_to_rest_move_is_time_optimal():
+    limits = Limits(np.full(6, -7.0), np.full(6, 7.0), 1.0, np.full(6, 3.0), np.full(6, 15.0))
+    # one joint moves 3 rad: reaches ξ and a_max, so T = D/v + v/a + a/j (jerk-limited S-curve)
+    duration = rest_to_rest(np.zeros(6), np.r_[3.0, 0.1, 0, 0, -0.2, 0], limits)
+    assert duration == pytest.approx(3.0 + 1.0 / 3.0 + 3.0 / 15.0, rel=1e-9)
+
+
+def test_verify_fails_the_graph_path_and_passes_the_jerk_one(dome, tmp_path):
+    cell, robot, pos, nor, motion = dome
+    n = len(pos)
+    tp = dict(positions=pos, normals=nor, layer=np.ones(n, np.int32), path=np.ones(n, np.int32),
+              extrusion=np.r_[0.0, np.full(n - 1, 0.05)], thickness=np.full(n, 0.8), feed=np.full(n, 600.0))
+    scene = CollisionScene(robot, cell)
+    graph = plan_print(robot, cell, tp, lambda layer: scene.collisions)
+    for kind in ("graph", "jerk"):
+        out = tmp_path / kind
+        out.mkdir()
+        np.savez(out / "toolpaths.npz", **tp)
+        motion, report = trajectory_stage(robot, cell, tp, graph, kind, lambda layer: scene.collisions)
+        write_robot_outputs(out, cell, robot.family, tp, motion)
+        failed = {c.name for c in verify_robot.checks(out) if not c.passed}
+        if kind == "graph":
+            assert "joint jerk within limits" in failed
+        else:
+            assert not failed, failed
+            assert report["after"]["total_squared_jerk"] < 0.1 * report["before"]["total_squared_jerk"]
+            assert report["rows_over_limits"] == 0
