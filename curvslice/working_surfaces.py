@@ -633,12 +633,17 @@ def _crossing_faces(earlier: trimesh.Trimesh, later_v: np.ndarray, later_f: np.n
     return ia[hit], ib[hit]
 
 
-def separate_from(earlier: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, voxel_size: float
+def separate_from(earlier: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, voxel_size: float,
+                  distance: SolidDistance | None = None, sides: VoxelSides | None = None
                   ) -> tuple[np.ndarray, np.ndarray, int, int]:
     """Make a layer clear of the one before it: every later triangle crossing an earlier one gets
     its corners pushed :data:`CLEARANCE` in front of that triangle's plane (along its normal, which
     points towards later layers), repeatedly; triangles still crossing after
-    :data:`SEPARATION_ROUNDS` are dropped. Returns (vertices, faces, vertices moved, faces dropped)."""
+    :data:`SEPARATION_ROUNDS` are dropped. Returns (vertices, faces, vertices moved, faces dropped).
+
+    Given the solid (``distance``, ``sides``), a corner is never pushed out of H: a steep earlier
+    triangle's plane can lie far from a corner it crosses near ∂H (homer's top layer: a corner
+    pushed 0.41 w ended 0.30 w outside H); such a corner stays, and its triangle is dropped."""
     v = np.array(vertices, float)
     if len(earlier.faces) == 0 or len(faces) == 0:
         return v, faces, 0, 0
@@ -657,9 +662,14 @@ def separate_from(earlier: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndar
         np.maximum.at(push, corner[need], lack[need])
         first = np.full(len(v), -1)
         first[corner[need][::-1]] = np.flatnonzero(need)[::-1]  # the pair that asks for a push
-        hit = push > 0
-        v[hit] += push[hit, None] * n[first[hit]]
-        moved |= hit
+        hit = np.flatnonzero(push > 0)
+        to = v[hit] + push[hit, None] * n[first[hit]]
+        if distance is not None and len(hit):
+            d, _ = sides.signed(distance, to)
+            keep = d <= SNAP * voxel_size
+            hit, to = hit[keep], to[keep]
+        v[hit] = to
+        moved[hit] = True
     _, ib = _crossing_faces(earlier, v, faces)
     keep = np.ones(len(faces), bool)
     keep[ib] = False
@@ -718,7 +728,7 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
         moved = dropped = 0
         t2 = time.perf_counter()
         if layers:
-            tv, tf, moved, dropped = separate_from(layers[-1], tv, tf, w)
+            tv, tf, moved, dropped = separate_from(layers[-1], tv, tf, w, distance, sides)
         trim_s += time.perf_counter() - t2
         mesh = trimesh.Trimesh(tv, tf, process=False)
         mesh.metadata.update(layer=i + 1, isovalue=level, lowered=offset != 0.0, untrimmed_faces=untrimmed,

@@ -285,6 +285,7 @@ def test_thin_loop_is_one_centre_pass(monkeypatch):
     assert coverage >= 0.95 and overlap <= 0.05
     monkeypatch.setattr("curvslice.toolpaths.spirals.thin_rise", lambda floor, width: 0.0)  # the loop itself
     monkeypatch.setattr("curvslice.toolpaths.rings.thin_rise", lambda floor, width: 0.0)
+    monkeypatch.setattr("curvslice.toolpaths.spirals.THIN_LOOP", 0.0)
     _, (_, loop_overlap) = measure()
     # measured 0.17 before the floor's excess went over the layer's edge, 0.024 since; the centre pass 0
     assert loop_overlap > overlap + 0.01
@@ -539,3 +540,27 @@ def test_fill_slivers_reaches_past_tips_without_new_overlap(monkeypatch):
     plain_coverage, plain_overlap = measure()
     assert coverage >= plain_coverage + 0.005
     assert overlap <= plain_overlap + 0.005
+
+
+def test_thin_innermost_ring_of_a_spiral_is_one_centre_pass(monkeypatch):
+    """A 30 × 3.3 mm strip (the tee's top layer at 2 mm voxels, in widths): rings at 0.45 w and
+    1.45 w, the distance peaking at 1.65 w, so the inner ring's sides lie 0.4 w apart. With beads at
+    least 0.8 w wide (the layer thickness) they would overlap along the whole strip; the inner ring
+    is printed as one pass down its middle instead (thin_rise: rise 0.2 w < 0.8 − 0.5 w)."""
+    width = 1.0
+    mesh = polygon_mesh(sg.box(0, 0, 30, 3.3), 0.15)
+
+    def measure():
+        result = layer_paths(mesh, width, min_bead=lambda p: np.full(len(p), 0.8 * width))
+        pos = np.vstack(result.pieces)
+        ids = np.repeat(np.arange(len(result.pieces)), [len(p) for p in result.pieces])
+        return result, layer_cover(mesh, pos, ids, width, seed=1, bead=np.concatenate(result.widths))
+
+    result, (coverage, overlap) = measure()
+    centre = [p for p in result.pieces if np.ptp(p[:, 1]) < 0.25 * width and abs(np.median(p[:, 1]) - 1.65) < 0.1 * width]
+    assert centre and np.ptp(centre[0][:, 0]) > 20 * width  # the middle pass runs along the strip
+    assert coverage >= 0.95 and overlap <= 0.05
+    monkeypatch.setattr("curvslice.toolpaths.spirals.thin_rise", lambda floor, width: 0.0)
+    monkeypatch.setattr("curvslice.toolpaths.rings.thin_rise", lambda floor, width: 0.0)
+    _, (_, loop_overlap) = measure()
+    assert loop_overlap > overlap + 0.02

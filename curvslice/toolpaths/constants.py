@@ -80,6 +80,11 @@ DOT_RING = 4.0
 #: (:attr:`~curvslice.toolpaths.rings.Ring.rise`). Which loops are thin is no constant: it follows
 #: from the layer thickness (:func:`~curvslice.toolpaths.rings.thin_rise`).
 ROUND_RING = 0.5
+#: A lone ring (a spiral of one ring) rising less than this many widths is a thin loop whatever the
+#: layer thickness (the rule of :func:`~curvslice.toolpaths.rings.thin_rise` at the default
+#: thickness 0.8 w): where layers are thinner, the fitted beads of its two sides still overlap when
+#: they lie closer than 0.6 w (bunny 1.0 mm layer 84, thickness 0.43 w: 9.6 % overlap as a loop).
+THIN_LOOP = 0.3
 #: Cut of a Fermat spiral (§3.5.1; Zhao et al. 2016): each ring of a chain of three or more opens
 #: over ``length / CUT_SHARE``, clipped to ``CUT_RANGE`` widths (two-ring chains open over the
 #: smaller). The links in and out of the spiral cross the rings there and lie

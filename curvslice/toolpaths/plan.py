@@ -123,7 +123,6 @@ class LayerRings:
     thin: list = field(default_factory=list)
     closed: int = 0
     top: float = 0.0
-    floor: float = BEAD_MIN  #: the narrowest bead in widths (the layer thickness), see :func:`layer_rings`
 
 
 def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
@@ -145,7 +144,7 @@ def layer_rings(mesh: trimesh.Trimesh, width: float,
                 min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerRings:
     """The part of :func:`layer_paths` that does not depend on where the previous layer ended: the
     boundary distance (heat method), its contour rings, peak lines and thin-wall passes, and the bead
-    floor that decides which loops are thin (``min_bead``: the layer thickness, from the earlier layers)."""
+    floor of each ring, which decides whether it is a thin loop (``min_bead``: the layer thickness, from the earlier layers)."""
     surface = clean_surface(mesh)
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, BRIDGE_HOLE * np.pi * width)
     if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > SUBDIVIDE_EDGE * width:
@@ -163,14 +162,18 @@ def layer_rings(mesh: trimesh.Trimesh, width: float,
     levels = np.arange(FIRST_LEVEL * width, top, width)
     rings, bands = contour_rings(v, f, dist, levels)
     rings = prune_islands(rings, bands.top, width)
+
+    def floor_of(points: np.ndarray) -> float:
+        """The narrowest bead along a contour (fit_beads), in widths: the local layer thickness
+        (0.8 w at the default path width, voxel / 0.8 of §3.6, on layers a voxel thick), which
+        decides whether the contour is a thin loop (thin_rise)."""
+        return max(float(np.median(min_bead(points))) / width, BEAD_MIN) if min_bead is not None else BEAD_MIN
+
     for r in rings:
-        r.top = float(bands.top[r.above])
-    # the narrowest bead (fit_beads), in widths: the layer thickness (0.8 w at the default path width,
-    # voxel / 0.8 of §3.6, on layers a voxel thick), which decides which loops are thin (thin_rise)
-    floor = max(float(np.median(min_bead(v))) / width, BEAD_MIN) if min_bead is not None else BEAD_MIN
-    extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor)
+        r.top, r.floor = float(bands.top[r.above]), floor_of(r.points)
+    extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor_of)
     rings += extra
-    return LayerRings(surface, v, f, bridged, rings, lines, thin, closed, top, floor)
+    return LayerRings(surface, v, f, bridged, rings, lines, thin, closed, top)
 
 
 def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, fill_gaps: bool = True,
@@ -181,7 +184,7 @@ def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, f
         return LayerPaths(pieces=[])
     surface, v, f, bridged, rings, lines, thin, closed, top = (r.surface, r.v, r.f, r.bridged, r.rings, r.lines,
                                                                r.thin, r.closed, r.top)
-    spirals, regions, splices, failed = connected_spirals(rings, width, start, r.floor)
+    spirals, regions, splices, failed = connected_spirals(rings, width, start)
     out = LayerPaths(pieces=spirals + lines, rings=len(rings), regions=regions + len(lines) + len(thin),
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))

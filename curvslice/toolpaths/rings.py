@@ -8,6 +8,7 @@ peaks and slivers the regular levels miss.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,14 +26,16 @@ from curvslice.toolpaths.stacked import run_labels, run_offsets
 
 @dataclass
 class Ring:
-    """A closed iso-contour: points (k,3) with the higher distance on the left, its band comps and
-    the largest distance on its higher side (``top``, where known)."""
+    """A closed iso-contour: points (k,3) with the higher distance on the left, its band comps,
+    the largest distance on its higher side (``top``, where known) and the narrowest bead along it
+    (``floor``, in widths: the local layer thickness)."""
 
     level: float
     points: np.ndarray
     below: int
     above: int
     top: float = np.inf
+    floor: float = BEAD_MIN
 
     @property
     def length(self) -> float:
@@ -52,14 +55,17 @@ class Ring:
         return 2.0 * area / max(self.length, 1e-300)
 
     @property
+    def round(self) -> bool:
+        """Isoperimetric ratio 4π·area / length² of at least ``ROUND_RING``."""
+        return 2.0 * np.pi * self.breadth / max(self.length, 1e-300) >= ROUND_RING
+
+    @property
     def rise(self) -> float:
         """How far the inside reaches from the ring: the distance's rise above it (``top − level``)
-        on a round ring (``ROUND_RING``), half the mean breadth on an elongated one, whose rise may
-        come from one bulge."""
+        on a round ring, half the mean breadth on an elongated one, whose rise may come from one
+        bulge."""
         rise = self.top - self.level
-        if 2.0 * np.pi * self.breadth / max(self.length, 1e-300) >= ROUND_RING:  # 4π·area / length²
-            return rise
-        return min(rise, 0.5 * self.breadth)
+        return rise if self.round else min(rise, 0.5 * self.breadth)
 
 
 def thin_rise(floor: float, width: float) -> float:
@@ -220,7 +226,7 @@ def prune_islands(rings: list[Ring], comp_top: np.ndarray, width: float) -> list
 
 def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels: np.ndarray,
                rings: list[Ring], bands: Bands, width: float,
-               floor: float = BEAD_MIN) -> tuple[list[Ring], list[np.ndarray]]:
+               floor_of: Callable[[np.ndarray], float] | None = None) -> tuple[list[Ring], list[np.ndarray]]:
     """One more contour in each peak that the regular rings leave uncovered, and centre lines of
     slivers.
 
@@ -232,7 +238,8 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
 
     Where that contour is a thin loop (a ridge, :func:`thin_rise`), its centre line is printed
     instead, if there is room for it: the ring's beads and the centre bead each at least ``floor``
-    widths, i.e. the peak ``1.5·floor − 0.5`` widths above the ring; else the ring's beads widen
+    widths (``floor_of(points)``, the narrowest bead along the contour, default ``BEAD_MIN``), i.e.
+    the peak ``1.5·floor − 0.5`` widths above the ring; else the ring's beads widen
     over the ridge (:func:`~curvslice.toolpaths.beads.fit_beads`). A dot (a ring shorter than
     ``DOT_RING`` widths) inside an inner ring is left out where that ring's widest beads reach the
     peak: the spiral would turn on it, and its links in and out would lie side by side.
@@ -264,13 +271,14 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
         for r in found:
             dot = r.length < DOT_RING * width
             r.top = float(bands.top[c])
+            r.floor = floor = floor_of(r.points) if floor_of is not None else BEAD_MIN
             if not dot and r.rise < thin_rise(floor, width):
                 if not around or rise >= (1.5 * floor - 0.5) * width:
                     lines.append(loop_centre_line(r.points))
             elif around and dot and b >= 2 and rise <= reach:
                 continue
             else:
-                extra.append(Ring(r.level, r.points, c, next_comp + r.above, float(bands.top[c])))
+                extra.append(Ring(r.level, r.points, c, next_comp + r.above, r.top, floor))
         next_comp += len(sub.top)
     return extra, lines
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from curvslice.toolpaths.constants import (BEAD_MIN, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
-                                           SPLICE_SHIFT, SPLICE_SHIFTS)
+from curvslice.toolpaths.constants import (CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
+                                           SPLICE_SHIFT, SPLICE_SHIFTS, THIN_LOOP)
 from curvslice.toolpaths.rings import Ring, loop_centre_line, thin_rise
 
 
@@ -110,10 +110,9 @@ def _contour_tree(rings: list[Ring], root: int) -> tuple[_Tree, list[int]]:
 class _Builder:
     """Builds one connected-Fermat-spiral piece per subtree, splicing children where they fit."""
 
-    def __init__(self, tree: _Tree, width: float, floor: float = BEAD_MIN):
+    def __init__(self, tree: _Tree, width: float):
         self.tree = tree
         self.w = width
-        self.thin = thin_rise(floor, width)
         self.gap = CUT_RANGE[0] * width
         self.extra_pieces: list[np.ndarray] = []
         self.splices = 0
@@ -138,7 +137,7 @@ class _Builder:
         chain = self.chain_from(ring_id)
         inner = self.tree.rings[chain[-1]]
         inner_comp = self.tree.child_comp.get(chain[-1])
-        if (len(chain) > 1 and inner.length >= DOT_RING * self.w and inner.rise < self.thin
+        if (len(chain) > 1 and inner.length >= DOT_RING * self.w and inner.rise < thin_rise(inner.floor, self.w)
                 and len(self.tree.child_rings.get(inner_comp, [])) <= 1):
             self.extra_pieces.append(loop_centre_line(inner.points))
             chain = chain[:-1]
@@ -163,7 +162,7 @@ class _Builder:
             hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
         if siblings:
             hosted.setdefault(0, []).extend(siblings)
-        if len(rings) == 1 and not hosted and rings[0].rise < self.thin:
+        if len(rings) == 1 and not hosted and rings[0].rise < max(thin_rise(rings[0].floor, self.w), THIN_LOOP * self.w):
             # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
             # as the region (fit_beads), instead of two sides printed over each other
             return loop_centre_line(rings[0].points)
@@ -245,16 +244,16 @@ class _Builder:
 
 
 
-def connected_spirals(rings: list[Ring], width: float, start: np.ndarray | None,
-                      floor: float = BEAD_MIN) -> tuple[list[np.ndarray], int, int, int]:
+def connected_spirals(rings: list[Ring], width: float,
+                      start: np.ndarray | None) -> tuple[list[np.ndarray], int, int, int]:
     """One connected-Fermat-spiral piece per connected region of ``rings``, each rooted at the
     outermost ring nearest to where the previous one ended (``start`` for the first), then the
     children that no splice could host. Returns the pieces and the numbers of regions, splices
-    and failed splices. ``floor`` is the narrowest bead in widths (the layer thickness), which
-    decides which loops are thin (:func:`~curvslice.toolpaths.rings.thin_rise`)."""
+    and failed splices. A ring's ``floor`` (the narrowest bead along it) decides whether it is a
+    thin loop (:func:`~curvslice.toolpaths.rings.thin_rise`)."""
     pieces: list[np.ndarray] = []
     remaining = set(range(len(rings)))
-    builder = _Builder(_Tree(rings, {}, {}), width, floor)
+    builder = _Builder(_Tree(rings, {}, {}), width)
     cursor = np.asarray(start, float) if start is not None else (rings[0].points[0] if rings else None)
     while remaining:
         # root: the band-0 component of the outermost ring nearest to the cursor
