@@ -600,6 +600,8 @@ def _run_stages(model, settings: Settings, until: str, keys: dict[str, str], old
         if isinstance(section, dict):
             report["timings_s"].update({k: v for k, v in section.get("timings_s", {}).items()
                                         if stage.name not in old})
+        if isinstance(section, str):  # skipped (the robot stage without a robot): nothing written to verify
+            continue
         report["stages"].append(stage.name)
         report["stage_keys"][stage.name] = keys[stage.name]
     report["timings_s"]["total"] = round(time.perf_counter() - start, 3)

@@ -119,3 +119,14 @@ def test_a_failing_result_is_a_non_zero_exit(tmp_path: Path) -> None:
     r = _cli("slice", str(model), "--voxel", "1.5", "--stages", "field", "--quiet", "--out", str(tmp_path / "f"))
     assert r.returncode == 1 and "missed voxels" in r.stderr, r.stderr
     assert (tmp_path / "f" / "field.npz").exists()  # the folder is kept for inspection
+
+
+def test_the_default_run_with_a_preview_verifies_clean(tmp_path: Path) -> None:
+    """The README's main command on the tee: all stages (the robot one skipped without --robot), a preview,
+    and the automatic verify passes — the skipped stage promises no files and the PNG is a PNG."""
+    out = tmp_path / "tee"
+    r = _cli("slice", str(TEE), "--voxel", "2", "--preview", "--quiet", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    rep = _report(out)
+    assert rep["stages"] == ["field", "layers", "toolpaths"] and rep["robot"].startswith("skipped")
+    assert "preview.png" in rep["files"]

@@ -71,6 +71,9 @@ def _load_error(path: Path) -> str | None:
             from curvslice.exporters.joints_csv import read_joints_csv
 
             read_joints_csv(path)
+        elif path.suffix == ".png":
+            if path.read_bytes()[:8] != b"\x89PNG\r\n\x1a\n":
+                return "not a PNG image"
         else:
             path.read_text(encoding="utf-8")
     except (OSError, ValueError, KeyError, IndexError, EOFError, zipfile.BadZipFile, CurvsliceError) as exc:
