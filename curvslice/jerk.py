@@ -46,7 +46,9 @@ import scipy.sparse as sp
 from scipy.optimize import minimize
 from scipy.sparse.linalg import spsolve
 
+from curvslice.derivatives import derivative_operators, motion_stats, segment_bounds
 from curvslice.kinematics import Robot, fk, ik, joint_placements, rigid_inverse
+from curvslice.time_scaling import Limits, retime_moves, time_scale
 from curvslice.workcell import Workcell, deposition_frames
 
 
@@ -77,72 +79,6 @@ class JerkSettings:
     tilt_weight: float = 1.0  # μ: pull of a tilt (rad²) back to the planned axis, against J (rad²/s⁶)
     fd_step: float = 1e-6  # rad, finite-difference step of the flange pose (and of q(θ) in Alg. 6) for dq/dz
     weights: tuple[float, ...] | None = None  # diagonal of W (Eq. 4.2); None = I
-
-
-# ---------------------------------------------------------------------------------------------
-# Eq. 4.7-4.11: derivatives at waypoints
-
-
-def segment_bounds(segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """First and last row (inclusive) of the segment of every row; rows are grouped by equal
-    consecutive ``segment`` values."""
-    n = len(segment)
-    start = np.r_[True, segment[1:] != segment[:-1]] if n else np.zeros(0, bool)
-    first = np.maximum.accumulate(np.where(start, np.arange(n), 0))
-    end = np.r_[segment[1:] != segment[:-1], True] if n else np.zeros(0, bool)
-    last = np.minimum.accumulate(np.where(end, np.arange(n), n)[::-1])[::-1]
-    return first, last
-
-
-def stencils(t: np.ndarray, segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Eq. 4.7-4.9 at every row: the first row of its 5-row window (n,) and the weights (n, 3, 5) of
-    q̇, q̈, q⃛ at t_i on the window's rows. The window is centred (i-2..i+2) where the segment allows,
-    else the 5 nearest rows of the segment; a segment of L < 5 rows uses its L rows (degree L-1)."""
-    t = np.asarray(t, float)
-    n = len(t)
-    first, last = segment_bounds(np.asarray(segment))
-    length = last - first + 1
-    start = np.clip(np.arange(n) - 2, first, np.maximum(last - 4, first))
-    weights = np.zeros((n, 3, 5))
-    for L in np.unique(length):
-        rows = np.flatnonzero(length == L)
-        k = int(min(L, 5))
-        if k < 2:
-            continue
-        idx = start[rows, None] + np.arange(k)
-        h = (t[idx[:, -1]] - t[idx[:, 0]]) / (k - 1)  # scale: conditioning of the Vandermonde matrix
-        tau = (t[idx] - t[rows, None]) / h[:, None]
-        V = tau[..., None] ** np.arange(k)  # Eq. 4.9 (t_i = 0, times in units of h)
-        beta = np.linalg.inv(V)  # row r: coefficient of τ^r of each basis function B_j (Eq. 4.8)
-        for r in range(1, min(k, 4)):
-            weights[rows, r - 1, :k] = np.prod(np.arange(1, r + 1)) * beta[:, r, :] / h[:, None] ** r
-    return start, weights
-
-
-def derivative_operators(t: np.ndarray, segment: np.ndarray) -> tuple[sp.csr_matrix, sp.csr_matrix, sp.csr_matrix]:
-    """Sparse D1, D2, D3 (n × n) with q̇ = D1 q, q̈ = D2 q, q⃛ = D3 q at every row (Eq. 4.10)."""
-    n = len(t)
-    start, w = stencils(t, segment)
-    cols = np.minimum(start[:, None] + np.arange(5), max(n - 1, 0))
-    rows = np.repeat(np.arange(n), 5)
-    return tuple(sp.csr_matrix((w[:, r].ravel(), (rows, cols.ravel())), shape=(n, n)) for r in range(3))
-
-
-def derivatives(q: np.ndarray, t: np.ndarray, segment: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Joint velocity, acceleration and jerk (n, 6) at every row by Eq. 4.7-4.10, per segment."""
-    D1, D2, D3 = derivative_operators(t, segment)
-    return D1 @ q, D2 @ q, D3 @ q
-
-
-def uniform_jerk(q: np.ndarray, h: float) -> np.ndarray:
-    """Eq. 4.11: q⃛ at the interior rows 2..n-3 of a path sampled every h seconds."""
-    return (q[4:] - 2 * q[3:-1] + 2 * q[1:-3] - q[:-4]) / (2 * h**3)
-
-
-def total_squared_jerk(jerk: np.ndarray, weights: np.ndarray | None = None) -> float:
-    """J of Eq. 4.2: Σ_i q⃛_iᵀ W q⃛_i."""
-    w = np.ones(jerk.shape[1]) if weights is None else np.asarray(weights, float)
-    return float((jerk**2 @ w).sum())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -239,27 +175,6 @@ def redundancy(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.
 
 # ---------------------------------------------------------------------------------------------
 # the filters
-
-
-@dataclass
-class Limits:
-    """Per-joint limits of Eq. 4.2 (rad, rad/s, rad/s², rad/s³)."""
-
-    lower: np.ndarray
-    upper: np.ndarray
-    speed: float  # ξ (Eq. 4.4), on ‖Δq‖∞/Δt as the graph search and the verifier use it
-    acceleration: np.ndarray
-    jerk: np.ndarray
-
-    def beyond(self, q: np.ndarray) -> np.ndarray:
-        """Rows of ``q`` (n, 6) outside the joint limits."""
-        return ((q < self.lower - 1e-9) | (q > self.upper + 1e-9)).any(axis=1)
-
-    @classmethod
-    def of(cls, robot: Robot, cell: Workcell) -> Limits:
-        lo, hi = cell.limits(robot)
-        return cls(lo, hi, cell.max_joint_speed, np.asarray(cell.max_joint_acceleration, float),
-                   np.asarray(cell.max_joint_jerk, float))
 
 
 def _excess(value: np.ndarray, bound: np.ndarray) -> np.ndarray:
@@ -543,115 +458,7 @@ def _solve_window(red, z, q, D2, D3, dt, segment, a, b, seg_first, seg_last, lim
 
 
 # ---------------------------------------------------------------------------------------------
-# limits by time-scaling, moves between segments
-
-
-def time_scale(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits,
-               settings: JerkSettings) -> tuple[np.ndarray, int, int]:
-    """Local time-scaling: lengthen every step faster than ξ (‖Δq‖∞/Δt, Eq. 4.4) and the steps of the
-    stencil of every row with |q̈| > a_max or |q⃛| > j_max by the factor that brings it under (acceleration ∝ 1/s², jerk ∝ 1/s³), spread to
-    neighbouring steps by at most ``scale_spread`` per step so the stretch itself stays smooth;
-    repeated until every row meets the limits. The path and each step's E are unchanged (lower feed).
-
-    Returns the new times (segment starts keep their offsets to the previous row), the rounds used
-    and the rows still over a limit (0 unless ``scaling_rounds`` ran out)."""
-    t = np.asarray(t, float).copy()
-    n = len(t)
-    if n < 2:
-        return t, 0, 0
-    seg = np.asarray(segment)
-    inside = seg[1:] == seg[:-1]
-    margin = settings.limit_margin
-    c = np.log(settings.scale_spread)
-    idx = np.arange(n - 1)
-    _, seg_rank = np.unique(seg[:-1], return_inverse=True)
-    big = 1e6
-    rounds = 0
-    for rounds in range(1, settings.scaling_rounds + 1):
-        start, w = stencils(t, seg)
-        acc = np.einsum("nk,nkj->nj", w[:, 1], q[np.minimum(start[:, None] + np.arange(5), n - 1)])
-        jerk = np.einsum("nk,nkj->nj", w[:, 2], q[np.minimum(start[:, None] + np.arange(5), n - 1)])
-        over_a = np.abs(acc) / limits.acceleration
-        over_j = np.abs(jerk) / limits.jerk
-        speed = np.abs(np.diff(q, axis=0)).max(axis=1) / np.diff(t) / limits.speed
-        over_v = np.where(inside, speed, 0.0)
-        if (over_a <= 1.0 + 1e-9).all() and (over_j <= 1.0 + 1e-9).all() and (over_v <= 1.0 + 1e-9).all():
-            return t, rounds - 1, 0
-        f = np.maximum(np.sqrt(over_a.max(axis=1) / margin), np.cbrt(over_j.max(axis=1) / margin))
-        f = np.maximum(f, 1.0)
-        # a row's stencil covers steps start..start+3 (within its segment)
-        step_f = np.ones(n - 1)
-        for k in range(4):
-            s = np.minimum(start + k, n - 2)
-            np.maximum.at(step_f, s, np.where(inside[s], f, 1.0))
-        step_f = np.maximum(step_f, np.where(over_v > 1.0, over_v / margin, 1.0))  # ξ (Eq. 4.4)
-        # spread the stretch: log f decays by c per step, never across a segment boundary
-        lf = np.log(step_f)
-        fwd = np.maximum.accumulate(lf + c * idx + big * seg_rank) - c * idx - big * seg_rank
-        rev_rank = seg_rank.max() - seg_rank
-        bwd = (np.maximum.accumulate((lf - c * idx + big * rev_rank)[::-1])[::-1] + c * idx - big * rev_rank)
-        lf = np.maximum(lf, np.maximum(fwd, bwd))
-        dt = np.diff(t)
-        dt = np.where(inside, dt * np.exp(lf), dt)
-        t = t[0] + np.r_[0.0, np.cumsum(dt)]
-    start, w = stencils(t, seg)
-    win = q[np.minimum(start[:, None] + np.arange(5), n - 1)]
-    acc = np.einsum("nk,nkj->nj", w[:, 1], win)
-    jerk = np.einsum("nk,nkj->nj", w[:, 2], win)
-    left = int(((np.abs(acc) > limits.acceleration * (1 + 1e-9)) | (np.abs(jerk) > limits.jerk * (1 + 1e-9))).any(axis=1).sum())
-    speed = np.abs(np.diff(q, axis=0)).max(axis=1) / np.diff(t)
-    left += int((inside & (speed > limits.speed * (1 + 1e-9))).sum())
-    return t, rounds, left
-
-
-def rest_to_rest(qa: np.ndarray, qb: np.ndarray, limits: Limits) -> float:
-    """Duration (s) of the time-optimal jerk-limited joint move from rest at qa to rest at qb
-    (Ruckig, all joints synchronized), within ξ, a_max and j_max."""
-    from ruckig import InputParameter, Result, Ruckig, Trajectory
-
-    inp = InputParameter(6)
-    inp.current_position = list(map(float, qa))
-    inp.target_position = list(map(float, qb))
-    inp.max_velocity = [float(limits.speed)] * 6
-    inp.max_acceleration = list(map(float, limits.acceleration))
-    inp.max_jerk = list(map(float, limits.jerk))
-    traj = Trajectory(6)
-    result = Ruckig(6).calculate(inp, traj)
-    if result not in (Result.Working, Result.Finished):
-        raise RuntimeError(f"ruckig could not plan a rest-to-rest move: {result}")
-    return float(traj.duration)
-
-
-def retime_moves(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits, min_step: float) -> tuple[np.ndarray, float]:
-    """Times where every move between segments takes its Ruckig rest-to-rest duration (at least
-    ``min_step``) and steps inside segments are kept. Returns the times and the moves' total (s)."""
-    n = len(t)
-    if n < 2:
-        return np.asarray(t, float).copy(), 0.0
-    dt = np.diff(t)
-    moves = np.flatnonzero(segment[1:] != segment[:-1])
-    total = 0.0
-    for i in moves:
-        dt[i] = max(rest_to_rest(q[i], q[i + 1], limits), min_step)
-        total += dt[i]
-    return t[0] + np.r_[0.0, np.cumsum(dt)], total
-
-
-# ---------------------------------------------------------------------------------------------
 # the stage
-
-
-def motion_stats(q: np.ndarray, t: np.ndarray, segment: np.ndarray, weights: np.ndarray | None = None) -> dict:
-    """Evidence of Eq. 4.2 on a trajectory: max |q̈| and |q⃛| per joint, J, print time."""
-    if len(q) == 0:
-        return {"max_acceleration": [0.0] * 6, "max_jerk": [0.0] * 6, "total_squared_jerk": 0.0, "time_s": 0.0}
-    _, acc, jerk = derivatives(q, t, segment)
-    return {
-        "max_acceleration": [round(float(v), 4) for v in np.abs(acc).max(axis=0)],
-        "max_jerk": [round(float(v), 4) for v in np.abs(jerk).max(axis=0)],
-        "total_squared_jerk": float(f"{total_squared_jerk(jerk, weights):.6g}"),
-        "time_s": round(float(t[-1] - t[0]), 3),
-    }
 
 
 def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,

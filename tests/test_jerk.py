@@ -10,18 +10,9 @@ import pytest
 
 from curvslice.collision import CollisionScene
 from curvslice.exporters.joints_csv import write_robot_outputs
-from curvslice.jerk import (
-    JerkSettings,
-    Limits,
-    derivatives,
-    global_filter,
-    local_filter,
-    redundancy,
-    rest_to_rest,
-    time_scale,
-    trajectory_stage,
-    uniform_jerk,
-)
+from curvslice.derivatives import derivatives, uniform_jerk
+from curvslice.jerk import JerkSettings, global_filter, local_filter, redundancy, trajectory_stage
+from curvslice.time_scaling import Limits, rest_to_rest, time_scale
 from curvslice.kinematics import fk_reference, load_robot
 from curvslice.motion import plan_motion, plan_print, step_times
 from curvslice.verify import robot as verify_robot
