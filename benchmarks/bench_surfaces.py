@@ -21,7 +21,7 @@ import trimesh
 
 from benchmarks.paper import AUTHORS_CPP, TABLE_3_1
 from curvslice.pipeline import Context, Settings, run, settings_of, stage
-from curvslice.working_surfaces import SolidDistance
+from curvslice.trimming import SolidDistance
 
 TARGET_S = 60.0
 MODELS = Path(__file__).resolve().parents[2] / "shared" / "models"

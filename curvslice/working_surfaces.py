@@ -17,7 +17,7 @@ For every layer l (print order) the surface S_l is built in three steps:
    sign-changing cell from the QEF (truncated pseudo-inverse around the mass point, the vertex kept
    in the bounding box of its cell's Hermite points); one quad per crossing edge, split along its
    shorter diagonal and oriented along +∇G (towards later layers).
-3. **Trimming by H**: vertices are classified by an exact signed distance to ∂H (closest triangle
+3. **Trimming by H** (:mod:`curvslice.trimming`): vertices are classified by an exact signed distance to ∂H (closest triangle
    feature + angle-weighted pseudonormal, Bærentzen & Aanæs 2005; voxels untouched by ∂H decide in
    bulk), triangles are clipped along the zero set, and every new boundary vertex is placed on ∂H by
    regula falsi on the signed distance. So ∂S_l lies on ∂H, except where layer l's own voxels end
@@ -59,7 +59,7 @@ from scipy.spatial import cKDTree
 from curvslice.errors import CurvsliceError
 from curvslice.executors import Executor, InProcess
 from curvslice.growing_field import ASN_OFFSETS
-from curvslice.voxelize import centres_inside, surface_voxels
+from curvslice.trimming import SNAP, SolidDistance, VoxelSides, trim_by_solid
 
 #: Voxels of padding around the field grid (continuation ring, gradient stencil, platform rows).
 PAD = 3
@@ -67,11 +67,6 @@ PAD = 3
 FALLBACK_OFFSETS = (0.0, -0.25, -0.5, -0.75, -0.9, -0.97, -0.99)
 #: Relative eigenvalue cut of the QEF's truncated pseudo-inverse (Ju et al. 2002 use 0.1).
 QEF_TRUNCATION = 0.3
-#: Vertices within this distance of ∂H (in voxel widths) are snapped onto ∂H (no slivers).
-SNAP = 0.01
-#: Regula falsi stops within this distance of ∂H (voxel widths); the vertex then moves onto ∂H.
-ROOT_TOL = 0.01
-ROOT_ITERATIONS = 40
 #: Consecutive layers that the approximation makes cross are pushed apart to this clearance (in
 #: voxel widths), for at most SEPARATION_ROUNDS rounds.
 CLEARANCE = 0.01
@@ -336,252 +331,6 @@ def dual_contour(field: ContinuedField, level: float, band: tuple[float, float] 
     faces = np.concatenate([t1, t2])
     used, faces = np.unique(faces, return_inverse=True)
     return x[used], faces.reshape(-1, 3)
-
-
-# ----------------------------------------------------------------------------------------------
-# 3. trimming by H
-
-
-def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
-                         ) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points of p on triangles (a, b, c), row by row (Ericson 2005, §5.1.5), and their
-    barycentric coordinates, exactly 0 on the feature's missing corners (edge and vertex regions)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
-    bp, cp = p - b, p - c
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        bary = np.stack([va / denom, vb / denom, vc / denom], axis=1)  # face region
-        t_ab = d1 / (d1 - d3)
-        t_ac = d2 / (d2 - d6)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-    regions = [  # first matching region wins (Ericson's order)
-        ((d1 <= 0) & (d2 <= 0), np.stack([np.ones_like(d1), 0 * d1, 0 * d1], 1)),
-        ((d3 >= 0) & (d4 <= d3), np.stack([0 * d1, np.ones_like(d1), 0 * d1], 1)),
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1 - t_ab, t_ab, 0 * d1], 1)),
-        ((d6 >= 0) & (d5 <= d6), np.stack([0 * d1, 0 * d1, np.ones_like(d1)], 1)),
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1 - t_ac, 0 * d1, t_ac], 1)),
-        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), np.stack([0 * d1, 1 - t_bc, t_bc], 1)),
-    ]
-    for mask, value in reversed(regions):
-        bary = np.where(mask[:, None], value, bary)
-    bary = np.nan_to_num(bary)
-    q = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
-    return q, bary
-
-
-@dataclass(frozen=True)
-class SolidDistance:
-    """Exact signed distance to a closed, outward-oriented triangle mesh (negative inside).
-
-    The closest triangle comes from k-d trees over triangle centroids, one per radius class so the
-    search ball stays tight; the sign from the angle-weighted pseudonormal of the closest feature
-    (face, edge or vertex), which is exact for closed manifolds (Bærentzen & Aanæs 2005).
-    """
-
-    triangles: np.ndarray       # (F,3,3)
-    face_normals: np.ndarray    # (F,3)
-    edge_normals: np.ndarray    # (F,3,3): pseudonormal of edge k = (corner k, corner k+1)
-    corner_normals: np.ndarray  # (F,3,3): pseudonormal of the vertex at corner k
-    centroids: np.ndarray
-    radii: np.ndarray
-    trees: tuple[tuple[cKDTree, np.ndarray, float], ...]
-    all_tree: cKDTree
-
-    @classmethod
-    def of(cls, mesh: trimesh.Trimesh) -> SolidDistance:
-        if not (mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0):
-            raise CurvsliceError("the solid must be a closed, outward-oriented mesh to trim layers by it; "
-                                 "re-run the solid stage (solid.stl) or repair the model")
-        tri = np.asarray(mesh.triangles, float)
-        fn = np.asarray(mesh.face_normals, float)
-        nf = len(tri)
-        edge_pn = np.zeros((len(mesh.edges_unique), 3))
-        np.add.at(edge_pn, mesh.edges_unique_inverse, np.repeat(fn, 3, axis=0))
-        edge_normals = edge_pn[mesh.edges_unique_inverse].reshape(nf, 3, 3)
-        vertex_pn = np.zeros((len(mesh.vertices), 3))
-        angles = np.asarray(mesh.face_angles, float)
-        np.add.at(vertex_pn, mesh.faces.ravel(), (angles[:, :, None] * fn[:, None, :]).reshape(-1, 3))
-        corner_normals = vertex_pn[mesh.faces]
-        centroids = tri.mean(axis=1)
-        radii = np.linalg.norm(tri - centroids[:, None, :], axis=2).max(axis=1)
-        bound = 1.5 * float(np.median(radii))
-        trees = []
-        remaining = np.arange(nf)
-        while len(remaining):
-            sel = remaining[radii[remaining] <= bound] if radii[remaining].max() > bound else remaining
-            if len(sel):
-                trees.append((cKDTree(centroids[sel]), sel, float(radii[sel].max())))
-            remaining = np.setdiff1d(remaining, sel, assume_unique=True)
-            bound *= 2
-        return cls(tri, fn, edge_normals, corner_normals, centroids, radii, tuple(trees), cKDTree(centroids))
-
-    def __call__(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distances (n,) and closest points (n,3) on ∂H."""
-        p = np.asarray(points, float).reshape(-1, 3)
-        if len(p) == 0:
-            return np.zeros(0), np.zeros((0, 3))
-        k = min(4, len(self.centroids))
-        _, near = self.all_tree.query(p, k=k)
-        near = near.reshape(len(p), k)
-        owner = np.repeat(np.arange(len(p)), k)
-        best = self._best(p, owner, near.ravel())
-        upper = np.sqrt(best[0])
-        for tree, ids, rmax in self.trees:
-            hits = tree.query_ball_point(p, upper + rmax, return_sorted=False)
-            counts = np.fromiter(map(len, hits), np.int64, len(hits))
-            if counts.sum() == 0:
-                continue
-            cand = ids[np.fromiter(itertools.chain.from_iterable(hits), np.int64, int(counts.sum()))]
-            own = np.repeat(np.arange(len(p)), counts)
-            gap = np.linalg.norm(p[own] - self.centroids[cand], axis=1) - self.radii[cand]
-            keep = gap <= upper[own]
-            best = self._best(p, own[keep], cand[keep], best)
-        d2, q, tri, bary = best
-        region = (bary > 0).sum(axis=1)  # 3 face, 2 edge, 1 vertex
-        rows = np.arange(len(p))
-        pn = self.face_normals[tri].copy()
-        on_edge = region == 2
-        missing = np.argmin(bary[on_edge] > 0, axis=1)  # the corner not on the edge
-        pn[on_edge] = self.edge_normals[tri[on_edge], (missing + 1) % 3]
-        at_vertex = region == 1
-        corner = np.argmax(bary[at_vertex], axis=1)
-        pn[at_vertex] = self.corner_normals[tri[at_vertex], corner]
-        side = np.sign(np.einsum("ij,ij->i", p - q, pn))
-        return side * np.sqrt(d2[rows]), q
-
-    def _best(self, p: np.ndarray, owner: np.ndarray, cand: np.ndarray,
-              previous: tuple[np.ndarray, ...] | None = None) -> tuple[np.ndarray, ...]:
-        """Fold candidate (point, triangle) pairs into the running best per point."""
-        if previous is not None and len(owner) == 0:
-            return previous
-        t = self.triangles[cand]
-        q, bary = closest_on_triangles(p[owner], t[:, 0], t[:, 1], t[:, 2])
-        d2 = np.einsum("ij,ij->i", p[owner] - q, p[owner] - q)
-        order = np.lexsort((d2, owner))
-        first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
-        if previous is None:
-            d2_out = np.full(len(p), np.inf)
-            q_out = np.zeros((len(p), 3))
-            tri_out = np.zeros(len(p), np.int64)
-            bary_out = np.zeros((len(p), 3))
-        else:
-            d2_out, q_out, tri_out, bary_out = (x.copy() for x in previous)
-        rows = owner[first]
-        better = d2[first] < d2_out[rows]
-        rows, first = rows[better], first[better]
-        d2_out[rows], q_out[rows], tri_out[rows], bary_out[rows] = d2[first], q[first], cand[first], bary[first]
-        return d2_out, q_out, tri_out, bary_out
-
-
-@dataclass(frozen=True)
-class VoxelSides:
-    """Per voxel of the field grid: −1 entirely inside H, +1 entirely outside, 0 touched by ∂H."""
-
-    side: np.ndarray
-    origin: np.ndarray
-    voxel_size: float
-
-    @classmethod
-    def of(cls, solid: trimesh.Trimesh, origin: np.ndarray, voxel_size: float,
-           shape: tuple[int, int, int]) -> VoxelSides:
-        tri = np.asarray(solid.triangles, float)
-        touched = surface_voxels(tri, origin, voxel_size, shape)
-        inside = centres_inside(tri, origin, voxel_size, shape)
-        side = np.where(touched, 0, np.where(inside, -1, 1)).astype(np.int8)
-        return cls(side, np.asarray(origin, float), float(voxel_size))
-
-    def __call__(self, points: np.ndarray) -> np.ndarray:
-        ijk = np.rint((points - self.origin) / self.voxel_size).astype(np.int64)
-        inside_grid = ((ijk >= 0) & (ijk < self.side.shape)).all(axis=1)
-        out = np.ones(len(points), np.int8)  # beyond the grid: outside H̄ ⊇ H
-        i = ijk[inside_grid]
-        out[inside_grid] = self.side[i[:, 0], i[:, 1], i[:, 2]]
-        return out
-
-    def signed(self, distance: SolidDistance, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``distance(points)`` with the sign of every point in a voxel untouched by ∂H taken from
-        that voxel: the whole voxel lies on one side, while the pseudonormal's sign can fail beside
-        a fold of ∂H (on the cow, an edge whose faces are 174° apart said "inside" 1.3 w outside H)."""
-        d, q = distance(points)
-        side = self(points)
-        return np.where(side != 0, side * np.abs(d), d), q
-
-
-def trim_by_solid(vertices: np.ndarray, faces: np.ndarray, distance: SolidDistance,
-                  sides: VoxelSides) -> tuple[np.ndarray, np.ndarray]:
-    """Keep the part of a triangle mesh inside H (§3.4.5, Fig. 3.8b): triangles are clipped along
-    the zero set of the signed distance, new vertices lie on ∂H; orientation is preserved."""
-    if len(faces) == 0:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
-    w = sides.voxel_size
-    v = np.array(vertices, float)
-    side = sides(v)
-    exact = side == 0  # in a voxel touched by ∂H: needs the exact value
-    sd = np.where(exact, np.nan, np.where(side > 0, np.inf, -np.inf))
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    keys, e_inv = np.unique(edges[:, 0] * len(v) + edges[:, 1], return_inverse=True)
-    uniq = np.stack([keys // len(v), keys % len(v)], axis=1)
-    e_inv = e_inv.reshape(-1)
-    crossing_edges = np.sign(sd[uniq[:, 0]]) != np.sign(sd[uniq[:, 1]])
-    exact[uniq[crossing_edges].ravel()] = True  # endpoints of possible crossings need the value
-    d, q = sides.signed(distance, v[exact])
-    sd[exact] = d
-    on = np.abs(sd) <= SNAP * w
-    v[np.flatnonzero(exact)[np.abs(d) <= SNAP * w]] = q[np.abs(d) <= SNAP * w]
-    sd[on] = 0.0
-    s = np.sign(sd)
-
-    # new vertices where an edge goes strictly from inside to outside: regula falsi (Illinois)
-    cross = (s[uniq[:, 0]] * s[uniq[:, 1]]) < 0
-    ce = uniq[cross]
-    a, b = v[ce[:, 0]], v[ce[:, 1]]
-    fa, fb = sd[ce[:, 0]], sd[ce[:, 1]]
-    x = a.copy()
-    todo = np.ones(len(ce), bool)
-    side_kept = np.zeros(len(ce), np.int8)
-    for _ in range(ROOT_ITERATIONS):
-        if not todo.any():
-            break
-        i = np.flatnonzero(todo)
-        t = fa[i] / (fa[i] - fb[i])
-        xi = a[i] + t[:, None] * (b[i] - a[i])
-        fx, qx = sides.signed(distance, xi)
-        x[i] = xi
-        done = np.abs(fx) <= ROOT_TOL * w
-        x[i[done]] = qx[done]
-        # Illinois: halve the value kept twice in a row
-        left = np.sign(fx) == np.sign(fa[i])
-        a[i[left]], fa[i[left]] = xi[left], fx[left]
-        b[i[~left]], fb[i[~left]] = xi[~left], fx[~left]
-        halve_b = left & (side_kept[i] == 1)
-        halve_a = ~left & (side_kept[i] == -1)
-        fb[i[halve_b]] *= 0.5
-        fa[i[halve_a]] *= 0.5
-        side_kept[i] = np.where(left, 1, -1)
-        todo[i[done]] = False
-    if todo.any():
-        _, qx = distance(x[todo])
-        x[todo] = qx  # not converged (ill-conditioned); the closest point of ∂H is the best estimate
-    new_id = np.full(len(uniq), -1, np.int64)
-    new_id[cross] = len(v) + np.arange(cross.sum())
-    v = np.concatenate([v, x])
-
-    # Sutherland-Hodgman per triangle: slots (corner k, crossing on edge k), k = 0, 1, 2
-    keep_corner = s[faces] <= 0
-    slots = np.full((len(faces), 6), -1, np.int64)
-    slots[:, 0::2] = np.where(keep_corner, faces, -1)
-    slots[:, 1::2] = new_id[e_inv].reshape(-1, 3)
-    order = np.argsort(slots < 0, axis=1, kind="stable")
-    poly = np.take_along_axis(slots, order, axis=1)
-    count = (poly >= 0).sum(axis=1)
-    tris = [poly[count >= j + 2][:, [0, j, j + 1]] for j in (1, 2, 3)]  # fan: (0,1,2), (0,2,3), (0,3,4)
-    out = np.concatenate(tris)
-    used, out = np.unique(out, return_inverse=True)
-    return v[used], out.reshape(-1, 3)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -17,17 +17,15 @@ from curvslice.geodesic import boundary_edges
 from curvslice.solid import load_solid
 from curvslice.verify import layers as verify_layers
 from curvslice.voxelize import voxelize
+from curvslice.trimming import SolidDistance, VoxelSides, trim_by_solid
 from curvslice.working_surfaces import (
     ContinuedField,
-    SolidDistance,
-    VoxelSides,
     continue_field,
     _triangles_intersect,
     dual_contour,
     extract_working_surfaces,
     layer_levels,
     separate_from,
-    trim_by_solid,
     write_layers,
 )
 
