@@ -59,6 +59,16 @@ def setting(default: Any, help: str, stage: str, unit: str = "", **cli: Any) -> 
     return field(default=default, metadata={"help": help, "stage": stage, "unit": unit, **cli})
 
 
+def setting_bounds(f: dataclasses.Field) -> tuple[float, float, str, bool]:
+    """(lowest, highest, unit, integer) of a numeric :class:`Settings` field as users give it: an angle the
+    CLI takes in degrees has its bounds in degrees."""
+    m = f.metadata
+    integer = isinstance(f.default, int) or f.type == "int | None"
+    if m.get("degrees"):
+        return float(np.degrees(m["lo"])), float(np.degrees(m["hi"])), "degrees", integer
+    return m["lo"], m["hi"], m["unit"], integer
+
+
 @dataclass(frozen=True)
 class Settings:
     """Every parameter of the pipeline (mm, radians, mm/min), grouped by the stage that reads it."""
@@ -120,10 +130,9 @@ class Settings:
             if "choices" in m and value not in m["choices"]:
                 raise CurvsliceError(f"setting {f.name} must be one of {', '.join(m['choices'])}, got {value!r}")
             if "lo" in m:
+                lo, hi, unit, integer = setting_bounds(f)
                 shown = float(np.degrees(value)) if m.get("degrees") and isinstance(value, (int, float)) else value
-                lo, hi = (float(np.degrees(m["lo"])), float(np.degrees(m["hi"]))) if m.get("degrees") else (m["lo"], m["hi"])
-                check_number(shown, f"setting {f.name}", "degrees" if m.get("degrees") else m["unit"], lo=lo, hi=hi,
-                             integer=isinstance(f.default, int) or f.type == "int | None")
+                check_number(shown, f"setting {f.name}", unit, lo=lo, hi=hi, integer=integer)
         w = self.voxel
         for name, low, high in (("layer_height", 0.25, 4.0), ("path_width", 0.5, 3.0)):
             value = getattr(self, name)

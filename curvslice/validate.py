@@ -21,6 +21,8 @@ import numpy as np
 
 from curvslice.errors import CurvsliceError
 
+T = typing.TypeVar("T")
+
 #: Largest input file any command reads (G-code, CSV, DXF, JSON, meshes): 2 GiB.
 MAX_INPUT_BYTES = 2 << 30
 
@@ -61,31 +63,31 @@ def _parse_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
 
 
-def number(unit: str, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
-           hi_open: bool = False) -> Callable[[str], float]:
-    """An argparse ``type=``: a finite float within the bounds, e.g. ``number("mm/s", lo=0, lo_open=True)``."""
+def argument_type(check: Callable[[str], T], name: str) -> Callable[[str], T]:
+    """An argparse ``type=`` from ``check(text)``, whose :class:`CurvsliceError` becomes argparse's one-line
+    option error (the option's name is added by argparse)."""
 
-    def parse(text: str) -> float:
+    def parse(text: str) -> T:
         try:
-            return check_number(_parse_float(text), "value", unit, lo=lo, hi=hi, lo_open=lo_open, hi_open=hi_open)
+            return check(text)
         except CurvsliceError as exc:
             raise argparse.ArgumentTypeError(str(exc)) from None
 
-    parse.__name__ = f"number of {unit}" if unit else "number"
+    parse.__name__ = name
     return parse
+
+
+def number(unit: str, *, lo: float | None = None, hi: float | None = None, lo_open: bool = False,
+           hi_open: bool = False) -> Callable[[str], float]:
+    """An argparse ``type=``: a finite float within the bounds, e.g. ``number("mm/s", lo=0, lo_open=True)``."""
+    return argument_type(lambda text: check_number(_parse_float(text), "value", unit, lo=lo, hi=hi, lo_open=lo_open,
+                                                   hi_open=hi_open), f"number of {unit}" if unit else "number")
 
 
 def count(what: str, *, lo: int = 0, hi: int | None = None) -> Callable[[str], int]:
     """An argparse ``type=``: an integer ``lo <= n <= hi`` (``what`` is the unit, e.g. "points")."""
-
-    def parse(text: str) -> int:
-        try:
-            return int(check_number(_parse_float(text), "value", what, lo=lo, hi=hi, integer=True))
-        except CurvsliceError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    parse.__name__ = f"count of {what}"
-    return parse
+    return argument_type(lambda text: int(check_number(_parse_float(text), "value", what, lo=lo, hi=hi, integer=True)),
+                         f"count of {what}")
 
 
 _NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,19}")

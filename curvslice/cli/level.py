@@ -17,15 +17,12 @@ from curvslice.cell.levelling import MAX_PROBES, read_probe_csv
 from curvslice.errors import CurvsliceError
 from curvslice.exporters.rapid import check_identifier, write_probe_routine
 from curvslice.outdir import atomic_files
-from curvslice.validate import check_budget, input_file, number, program_name
+from curvslice.validate import argument_type, check_budget, input_file, number, program_name
 
 
-def _signal_name(text: str) -> str:
+def _identifier(text: str) -> str:
     """``--signal``: a RAPID identifier (it is written into the module as is)."""
-    try:
-        check_identifier(text)
-    except CurvsliceError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    check_identifier(text)
     return text
 
 
@@ -39,7 +36,7 @@ def add_parser(subparsers) -> None:
     r.add_argument("--cell", default="generic", help="cell preset or JSON file (tool, work object, orientation)")
     r.add_argument("--probe-offset", type=number("mm"), nargs=3, default=(0.0, 0.0, 0.0), metavar=("DX", "DY", "DZ"),
                    help="probe tip minus nozzle tip, mm (seed 004: 24.88 -39.05 2.4)")
-    r.add_argument("--signal", type=_signal_name, default="diProbe", help="digital input raised by the probe")
+    r.add_argument("--signal", type=argument_type(_identifier, "RAPID identifier"), default="diProbe", help="digital input raised by the probe")
     r.add_argument("--name", type=program_name, default="BedProbe", help="module and procedure name")
     r.add_argument("--out", type=Path, default=Path("."), help="output folder")
     r.set_defaults(run=run_routine)

@@ -16,8 +16,8 @@ import numpy as np
 
 from curvslice.errors import CurvsliceError
 from curvslice.executors import open_executor
-from curvslice.pipeline import STAGE_NAMES, Settings, read_report, run as run_pipeline, settings_of
-from curvslice.validate import count, number
+from curvslice.pipeline import STAGE_NAMES, Settings, read_report, run as run_pipeline, setting_bounds, settings_of
+from curvslice.validate import argument_type, count, number
 
 DESCRIPTION = (
     "Decompose a solid into curved, support-free, accessible layers (thesis §3.4), cover them with "
@@ -38,16 +38,12 @@ def _flag(f: dataclasses.Field) -> str:
 def _type(f: dataclasses.Field):
     """argparse type of a Settings field: finite and in the field's range for numbers (checked while
     parsing, before any stage runs), a shipped name or JSON file for the workcell, text otherwise."""
-    m = f.metadata
     if f.name == "robot":
-        return _workcell_arg
-    if "lo" not in m:
+        return argument_type(_workcell, "workcell")
+    if "lo" not in f.metadata:
         return str
-    unit = "degrees" if m.get("degrees") else m["unit"]
-    lo, hi = (float(np.degrees(m["lo"])), float(np.degrees(m["hi"]))) if m.get("degrees") else (m["lo"], m["hi"])
-    if isinstance(f.default, int) or f.type == "int | None":
-        return count(unit or f.name.replace("_", " "), lo=lo, hi=hi)
-    return number(unit, lo=lo, hi=hi)
+    lo, hi, unit, integer = setting_bounds(f)
+    return count(unit or f.name.replace("_", " "), lo=lo, hi=hi) if integer else number(unit, lo=lo, hi=hi)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -95,14 +91,12 @@ def add_execution_arguments(p: argparse.ArgumentParser) -> None:
                    "tcp://host:8786 (`dask scheduler` + `dask worker`, Kubernetes, SLURM...)")
 
 
-def _workcell_arg(text: str) -> str:
-    """Check ``--robot`` while parsing, not after the slicing stages."""
+def _workcell(text: str) -> str:
+    """``--robot``: a shipped workcell name or a workcell JSON file, checked while parsing, not after the
+    slicing stages."""
     from curvslice.workcell import load_workcell
 
-    try:
-        load_workcell(text)
-    except CurvsliceError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+    load_workcell(text)
     return text
 
 
