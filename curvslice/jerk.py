@@ -48,7 +48,8 @@ from scipy.sparse.linalg import spsolve
 
 from curvslice.derivatives import derivative_operators, motion_stats, segment_bounds
 from curvslice.kinematics import Robot, fk, ik, joint_placements, rigid_inverse
-from curvslice.time_scaling import Limits, retime_moves, time_scale
+from curvslice.motion import PrintMotion
+from curvslice.time_scaling import Limits, rest_to_rest, retime_moves, time_scale
 from curvslice.workcell import Workcell, deposition_frames
 
 
@@ -570,24 +571,60 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     return out, report
 
 
-def trajectory_stage(robot: Robot, cell: Workcell, toolpaths: dict[str, np.ndarray], motion, trajectory: str = "jerk",
+#: jerk report figures that add up over the print
+SUMMED = ("gauss_newton_steps", "alg6_iterations", "rows_over_limits", "time_scaling_added_s", "collision_checks",
+          "rows_reverted_for_collision", "rows_reverted_for_joint_limits", "rows_fixed", "rows_tilted",
+          "seconds_filter", "seconds")
+
+
+def rest_to_rest_time(robot: Robot, cell: Workcell) -> Callable[[np.ndarray, np.ndarray], float]:
+    """The jerk-limited move between layers: Ruckig's rest-to-rest duration, at least one step."""
+    limits = Limits.of(robot, cell)
+    return lambda qa, qb: max(rest_to_rest(qa, qb, limits), cell.min_step_time)
+
+
+def merge_reports(robot: Robot, cell: Workcell, graph, final, reports: list[dict], trajectory: str,
+                  settings: JerkSettings = JerkSettings()) -> dict:
+    """The print's trajectory report from its parts' (:func:`trajectory_stage` on blocks of layers): derivatives of the
+    joined graph motion ("before") and of the final one ("after", Eq. 4.7-4.10), summed counts, the
+    print time added by the time-scaling against the graph's printing steps, and the moves' total."""
+    limits = Limits.of(robot, cell)
+    w = None if settings.weights is None else np.asarray(settings.weights, float)
+    out: dict = {"trajectory": trajectory, "before": motion_stats(graph.q, graph.t, graph.segment, w)}
+    if trajectory == "jerk":
+        out["after"] = motion_stats(final.q, final.t, final.segment, w)
+        for key in SUMMED:
+            out[key] = round(sum(r[key] for r in reports), 3) if reports else 0
+        out["time_scaling_rounds"] = max((r["time_scaling_rounds"] for r in reports), default=0)
+        out["max_tilt_deg"] = max((r["max_tilt_deg"] for r in reports), default=0.0)
+        inside = graph.segment[1:] == graph.segment[:-1]
+        steps = float(np.diff(graph.t)[inside].sum()) if len(graph.t) > 1 else 0.0
+        out["time_scaling_added_pct"] = round(100 * out["time_scaling_added_s"] / steps, 3) if steps > 0 else 0.0
+        moves = final.segment[1:] != final.segment[:-1]
+        out["moves_s"] = round(float(np.diff(final.t)[moves].sum()), 3) if len(final.t) > 1 else 0.0
+    out["limits"] = {"speed": limits.speed, "acceleration": limits.acceleration.tolist(), "jerk": limits.jerk.tolist()}
+    out["layers"] = [entry for r in reports for entry in r["layers"]]
+    return out
+
+
+def trajectory_stage(robot: Robot, cell: Workcell, toolpaths: dict[str, np.ndarray], motion: PrintMotion,
+                     trajectory: str = "jerk",
                      collides_for_layer: Callable[[int], Callable[[np.ndarray], np.ndarray] | None] | None = None,
-                     settings: JerkSettings = JerkSettings()):
-    """The robot stage's last step: ``trajectory`` = "jerk" returns :func:`optimize_print`'s motion
-    and report; "graph" keeps the graph search's motion (§4.3.1, for comparison) and reports its
-    derivatives (Eq. 4.7-4.10) against the workcell's limits."""
+                     settings: JerkSettings = JerkSettings()) -> tuple[PrintMotion, dict]:
+    """The robot stage's last step on a graph motion (one layer, a block of layers or the whole print):
+    ``trajectory`` = "jerk" returns :func:`optimize_print`'s motion and report; "graph" keeps the graph
+    search's motion (§4.3.1, for comparison) and reports its derivatives (Eq. 4.7-4.10)."""
     layer = np.asarray(toolpaths["layer"])[motion.index]
     if trajectory == "jerk":
+        if not len(motion.q):  # no pose reached: nothing to filter
+            return motion, {**dict.fromkeys(SUMMED, 0), "time_scaling_rounds": 0, "max_tilt_deg": 0.0, "layers": []}
         return optimize_print(robot, cell, np.asarray(toolpaths["positions"], float)[motion.index], motion,
                               collides_for_layer, layer, settings)
     if trajectory != "graph":
         raise ValueError(f"trajectory must be 'jerk' or 'graph' (got {trajectory!r})")
     w = None if settings.weights is None else np.asarray(settings.weights, float)
-    limits = Limits.of(robot, cell)
     return motion, {
         "trajectory": "graph",
-        "before": motion_stats(motion.q, motion.t, motion.segment, w),
-        "limits": {"speed": limits.speed, "acceleration": limits.acceleration.tolist(), "jerk": limits.jerk.tolist()},
         "layers": [{"layer": int(v), "before": motion_stats(motion.q[layer == v], motion.t[layer == v],
                                                             motion.segment[layer == v], w)} for v in np.unique(layer)],
     }

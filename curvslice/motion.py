@@ -243,6 +243,104 @@ def segment_speeds(path_id: np.ndarray, feed: np.ndarray, cell: Workcell) -> np.
     return np.where(same, np.where(feed_s > 0, feed_s, cell.linear_speed), cell.travel_speed)
 
 
+def plan_layer(
+    robot: Robot,
+    cell: Workcell,
+    toolpaths: dict[str, np.ndarray],
+    rows: np.ndarray,
+    collides: Callable[[np.ndarray], np.ndarray] | None = None,
+    cost: str = "l1",
+    max_rotations: int | None = None,
+) -> PrintMotion:
+    """One layer's motion: ``rows`` of ``toolpaths`` (keys of ``toolpaths.npz``, one layer, in print
+    order) as a ladder graph of its own (multi-source, like the thesis's per-tool-path graphs, §4.3.1).
+
+    ``collides(q)`` is the collision predicate valid while printing that layer (the part then is the
+    union of the earlier layers): the layer depends on no other layer's motion, so layers are
+    independent tasks. Waypoints left without a usable pose get a deviated axis
+    (:func:`deviate_axes`) and the layer is planned again with it. Times start at 0 and segments at 0;
+    :func:`join_motions` places the layers one after the other."""
+    start = time.perf_counter()
+    rows = np.asarray(rows)
+    positions = np.asarray(toolpaths["positions"], float)[rows]
+    planned = np.asarray(toolpaths["normals"], float)[rows]
+    speed = segment_speeds(np.asarray(toolpaths["path"])[rows], np.asarray(toolpaths["feed"], float)[rows], cell)
+    axes, deviation, tried = planned, np.zeros(len(rows)), np.zeros(len(rows), bool)
+    checks = 0
+    while True:
+        dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed) \
+            if len(rows) > 1 else np.zeros(0)
+        near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
+        motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near)
+        checks += motion.collision_checks
+        stuck = (motion.segment < 0) & ~tried
+        if not stuck.any() or cell.max_axis_deviation <= 0:
+            break
+        axes, more = deviate_axes(robot, cell, positions, axes, stuck, collides, motion.rotations)
+        tried |= stuck
+        if not (more > 0).any():
+            break
+        deviation = deviation + more
+    done = motion.segment >= 0
+    seg = motion.segment[done]
+    local = np.cumsum(np.r_[True, seg[1:] != seg[:-1]]) - 1 if len(seg) else seg
+    starts = np.r_[True, local[1:] != local[:-1]] if len(seg) else np.zeros(0, bool)
+    t = motion.t[done]
+    stats = {
+        "layer": int(np.asarray(toolpaths["layer"])[rows[0]]) if len(rows) else 0,
+        "waypoints": int(len(rows)),
+        "rotations": motion.rotations,
+        "ik_solutions_mean": round(float(motion.solutions.mean()), 2) if len(rows) else 0.0,
+        "ik_solutions_min": int(motion.solutions.min()) if len(rows) else 0,
+        "splits": [int(rows[s]) for s in motion.splits],
+        "winding_splits": [int(rows[s]) for s in motion.winding_splits],
+        "skipped": int((~done).sum()),
+        "deviated": int((deviation[done] > 0).sum()),
+        "max_deviation_deg": round(float(np.degrees(deviation[done].max())), 3) if done.any() else 0.0,
+        "collision_checks": checks,  # over every planning pass of the layer
+        "seconds": round(time.perf_counter() - start, 3),
+    }
+    return PrintMotion(
+        index=rows[done].astype(np.int64),
+        t=t - t[0] if len(t) else t,
+        q=motion.q[done],
+        segment=local.astype(np.int64),
+        extruding=(np.asarray(toolpaths["extrusion"], float)[rows[done]] > 0) & ~starts,
+        normals=axes[done] / np.linalg.norm(axes[done], axis=1, keepdims=True),
+        deviation=deviation[done],
+        layers=[stats],
+    )
+
+
+def join_motions(parts: list[PrintMotion], move_time: Callable[[np.ndarray, np.ndarray], float]) -> PrintMotion:
+    """The layers' motions one after the other: each starts ``move_time(q_last, q_first)`` seconds
+    after the previous one ends (a joint move, a new segment); segment ids become global."""
+    out: dict[str, list[np.ndarray]] = {k: [] for k in ("index", "t", "q", "segment", "extruding", "normals", "deviation")}
+    clock, seg0, last_q = 0.0, 0, None
+    for part in parts:
+        if len(part.q):
+            clock += 0.0 if last_q is None else move_time(last_q, part.q[0])
+            out["t"].append(part.t - part.t[0] + clock)
+            out["segment"].append(part.segment - part.segment[0] + seg0)
+            for k in ("index", "q", "extruding", "normals", "deviation"):
+                out[k].append(getattr(part, k))
+            clock, seg0, last_q = float(out["t"][-1][-1]), int(out["segment"][-1][-1]) + 1, part.q[-1]
+    empty = {"index": (0,), "t": (0,), "q": (0, 6), "segment": (0,), "extruding": (0,), "normals": (0, 3),
+             "deviation": (0,)}
+    arrays = {k: np.concatenate(v) if v else np.zeros(empty[k]) for k, v in out.items()}
+    return PrintMotion(
+        index=arrays["index"].astype(np.int64), t=arrays["t"], q=arrays["q"],
+        segment=arrays["segment"].astype(np.int64), extruding=arrays["extruding"].astype(bool),
+        normals=arrays["normals"], deviation=arrays["deviation"],
+        layers=[s for part in parts for s in part.layers],
+    )
+
+
+def joint_move_time(cell: Workcell) -> Callable[[np.ndarray, np.ndarray], float]:
+    """The graph search's move between layers: every joint at most ξ (Eq. 4.4), at least one step."""
+    return lambda qa, qb: max(float(np.abs(qb - qa).max()) / cell.max_joint_speed, cell.min_step_time)
+
+
 def plan_print(
     robot: Robot,
     cell: Workcell,
@@ -252,88 +350,17 @@ def plan_print(
     max_rotations: int | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> PrintMotion:
-    """Plan every layer of ``toolpaths`` (keys of ``toolpaths.npz``) as its own ladder graph
-    (multi-source, like the thesis's per-tool-path graphs); layers are joined by joint moves.
-
-    ``collides_for_layer(layer)`` returns the collision predicate valid while printing that layer
-    (the part then is the union of the earlier layers). Waypoints left without a usable pose get a
-    deviated axis (:func:`deviate_axes`) and the layer is planned again with it. ``progress(n)`` is
-    told of n waypoints done.
-    """
-    positions = np.asarray(toolpaths["positions"], float)
-    normals = np.asarray(toolpaths["normals"], float)
+    """Plan every layer of ``toolpaths`` with :func:`plan_layer` (``collides_for_layer(layer)``: its
+    collision predicate) and join them by joint moves at ξ. ``progress(n)`` is told of n waypoints done."""
     layer = np.asarray(toolpaths["layer"])
-    path_id = np.asarray(toolpaths["path"])
-    feed = np.asarray(toolpaths["feed"], float)
-    extrusion = np.asarray(toolpaths["extrusion"], float)
-    out_idx, out_t, out_q, out_seg, out_ext, out_axis, out_dev, stats = [], [], [], [], [], [], [], []
-    clock, seg0, last_q = 0.0, 0, None
+    parts = []
     for value in np.unique(layer):
-        start = time.perf_counter()
         rows = np.flatnonzero(layer == value)
-        speed = segment_speeds(path_id[rows], feed[rows], cell)
         collides = collides_for_layer(int(value)) if collides_for_layer else None
-        axes, deviation, tried = normals[rows], np.zeros(len(rows)), np.zeros(len(rows), bool)
-        checks = 0
-        while True:
-            dt = step_times(positions[rows], speed, cell.min_step_time, axes, cell.tool_turn_speed) \
-                if len(rows) > 1 else np.zeros(0)
-            near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
-            motion = plan_motion(robot, cell, positions[rows], axes, dt, collides, cost, None, max_rotations, near)
-            checks += motion.collision_checks
-            stuck = (motion.segment < 0) & ~tried
-            if not stuck.any() or cell.max_axis_deviation <= 0:
-                break
-            axes, more = deviate_axes(robot, cell, positions[rows], axes, stuck, collides, motion.rotations)
-            tried |= stuck
-            if not (more > 0).any():
-                break
-            deviation = deviation + more
-        done = motion.segment >= 0
-        if done.any():
-            first = motion.q[done][0]
-            move = 0.0 if last_q is None else max(float(np.abs(first - last_q).max()) / cell.max_joint_speed, cell.min_step_time)
-            base = clock + move - float(motion.t[done][0])
-            seg = motion.segment[done]
-            seg_global = seg0 + np.cumsum(np.r_[True, seg[1:] != seg[:-1]]) - 1
-            starts = np.r_[True, seg_global[1:] != seg_global[:-1]]
-            out_idx.append(rows[done])
-            out_t.append(motion.t[done] + base)
-            out_q.append(motion.q[done])
-            out_seg.append(seg_global)
-            out_ext.append((extrusion[rows[done]] > 0) & ~starts)
-            out_axis.append(axes[done] / np.linalg.norm(axes[done], axis=1, keepdims=True))
-            out_dev.append(deviation[done])
-            clock = float(out_t[-1][-1])
-            seg0 = int(seg_global[-1]) + 1
-            last_q = motion.q[done][-1]
-        stats.append({
-            "layer": int(value),
-            "waypoints": int(len(rows)),
-            "rotations": motion.rotations,
-            "ik_solutions_mean": round(float(motion.solutions.mean()), 2),
-            "ik_solutions_min": int(motion.solutions.min()),
-            "splits": [int(rows[s]) for s in motion.splits],
-            "winding_splits": [int(rows[s]) for s in motion.winding_splits],
-            "skipped": int((~done).sum()),
-            "deviated": int((deviation[done] > 0).sum()),
-            "max_deviation_deg": round(float(np.degrees(deviation[done].max())), 3) if done.any() else 0.0,
-            "collision_checks": checks,  # over every planning pass of the layer
-            "seconds": round(time.perf_counter() - start, 3),
-        })
+        parts.append(plan_layer(robot, cell, toolpaths, rows, collides, cost, max_rotations))
         if progress:
             progress(len(rows))
-    cat = lambda parts, shape: np.concatenate(parts) if parts else np.zeros(shape)  # noqa: E731
-    return PrintMotion(
-        index=cat(out_idx, (0,)).astype(np.int64),
-        t=cat(out_t, (0,)),
-        q=cat(out_q, (0, 6)),
-        segment=cat(out_seg, (0,)).astype(np.int64),
-        extruding=cat(out_ext, (0,)).astype(bool),
-        normals=cat(out_axis, (0, 3)),
-        deviation=cat(out_dev, (0,)),
-        layers=stats,
-    )
+    return join_motions(parts, joint_move_time(cell))
 
 
 def motion_summary(motion: PrintMotion, waypoints: int) -> dict[str, object]:

@@ -347,12 +347,10 @@ def run_toolpaths(ctx: Context) -> ToolpathsResult:
 
 
 def run_robot(ctx: Context) -> RobotResult:
-    """Oriented waypoints → pose-continuous joint trajectory of the workcell's arm (§3.5.3, §4.3.1).
-    Skipped (``motion`` None) when no robot is set."""
-    from curvslice.collision import CollisionScene  # pinocchio / fcl only when a robot is planned
-    from curvslice.kinematics import load_robot
-    from curvslice.jerk import trajectory_stage
-    from curvslice.motion import motion_summary, plan_print
+    """Oriented waypoints → pose-continuous, jerk-optimized joint trajectory of the workcell's arm
+    (§3.5.3, §4.3), layer blocks as tasks on the executor. Skipped (``motion`` None) when no robot is set."""
+    from curvslice.motion import motion_summary  # pinocchio / fcl only when a robot is planned
+    from curvslice.robot_stage import plan_robot
     from curvslice.workcell import load_workcell
 
     s = ctx.settings
@@ -361,27 +359,22 @@ def run_robot(ctx: Context) -> RobotResult:
     cell = load_workcell(s.robot)
     if s.rotations:
         cell = cell.with_rotations(s.rotations)
-    robot = load_robot(cell.robot)
     tp = ctx.results["toolpaths"].toolpaths
-    layers = ctx.results["layers"].layers
-    toolpaths = toolpath_arrays(tp)
     n = len(tp.positions)
-    scene = CollisionScene(robot, cell, ctx.results["field"].platform_vertices)
     start = time.perf_counter()
-    with ctx.bar(f"robot motion ({cell.name})", n, unit="waypoint") as bar:
-        motion = plan_print(robot, cell, toolpaths, lambda layer: scene.for_layer(layers, layer),
-                            cost=s.motion_cost, max_rotations=s.max_rotations, progress=bar.update)
+    with ctx.bar(f"robot motion ({cell.name})", len(np.unique(tp.layer)), unit="layer") as bar:
+        _, motion, jerk = plan_robot(cell, toolpath_arrays(tp), ctx.results["layers"].layers,
+                                     ctx.results["field"].platform_vertices, s.motion_cost, s.max_rotations,
+                                     s.trajectory, ctx.executor, bar)
     if n and not len(motion.q):
         raise CurvsliceError(f"the workcell {cell.name} reaches none of the {n} waypoints with a collision-free pose: "
                              "move the part within the arm's reach (workcell JSON: platform/nozzle pose) or pick "
                              "another robot")
-    graph_s = time.perf_counter() - start
-    motion, jerk = trajectory_stage(robot, cell, toolpaths, motion, s.trajectory,
-                                    lambda layer: scene.for_layer(layers, layer))
     seconds = time.perf_counter() - start
+    graph_s = sum(layer["seconds"] for layer in motion.layers)
     report = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n), "jerk": jerk,
-              "timings_s": {"robot": round(seconds, 3), "robot_graph": round(graph_s, 3),
-                            "robot_trajectory": round(seconds - graph_s, 3)}}
+              "timings_s": {"robot": round(seconds, 3), "robot_graph": round(graph_s, 3),  # task seconds, summed
+                            "robot_trajectory": round(float(jerk.get("seconds", 0.0)), 3)}}
     if not ctx.quiet:
         print(f"robot: {report['rows']}/{n} waypoints, {report['segments']} motions ({report['splits']} splits), "
               f"{report['skipped']} skipped, {report['deviated']} with the axis tilted "
