@@ -97,7 +97,7 @@ class CollisionScene:
         self.carried = [_mesh_shape("platform", platform)]
         self.bounds = SphereBounds(robot, cell, platform) if bounds else None
         self.fcl_configs = 0  # configurations that needed at least one fcl pair test
-        self._blocks: dict[tuple[int, ...], _Shape] = {}  # the BVH of the earlier whole blocks of layers
+        self._blocks: dict[tuple[int, ...], _Shape] = {}  # BVHs of the earlier whole blocks and of the tails after them
         # probes for _inside_box, per connected piece of every link mesh (body frame): up to PROBES
         # of its vertices, the link carrying it, its bounding sphere
         pieces = [(k, piece) for k, s in enumerate(robot.links) for piece in s.mesh.split(only_watertight=False)]
@@ -126,8 +126,9 @@ class CollisionScene:
         """Carry the union of layers 1..layer-1 (print order) and return :meth:`collisions`.
 
         The part is carried as two BVHs: the layers before the last multiple of ``PART_BLOCK``
-        (built once per block of layers and reused) and the few layers after it (rebuilt each time);
-        rebuilding the whole part every layer is quadratic in the layers."""
+        (built once per block of layers and reused) and the few layers after it (kept for the block's
+        layers, which are asked for again by the jerk stage's collision rounds); rebuilding the whole
+        part every layer is quadratic in the layers."""
         earlier = layers[: max(layer - 1, 0)]
         cut = len(earlier) // PART_BLOCK * PART_BLOCK
         parts = []
@@ -137,8 +138,10 @@ class CollisionScene:
             shape = self._blocks.get(key)
             if shape is None and block:
                 shape = _mesh_shape("part", trimesh.util.concatenate(block))
-                if keep:
+                if keep:  # a new whole block: the tails of the previous one are not needed again
                     self._blocks = {key: shape}
+                elif len(self._blocks) <= PART_BLOCK:  # tails: a layer is asked for again (graph, jerk rounds)
+                    self._blocks[key] = shape
             if shape is not None:
                 parts.append(shape)
         nonempty = [m for m in earlier if len(m.faces)]
