@@ -23,6 +23,7 @@ import hashlib
 import json
 import shutil
 import time
+from collections import Counter
 from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field
@@ -372,7 +373,9 @@ def run_robot(ctx: Context) -> RobotResult:
                              "another robot")
     seconds = time.perf_counter() - start
     graph_s = sum(layer["seconds"] for layer in motion.layers)
+    skipped = [entry for layer in motion.layers for entry in layer["skipped_rows"]]
     report = {"workcell": cell.name, "robot": cell.robot, **motion_summary(motion, n), "jerk": jerk,
+              "skipped_reasons": dict(Counter(e["reason"].split(" (")[0] for e in skipped)),
               "timings_s": {"robot": round(seconds, 3), "robot_graph": round(graph_s, 3),  # task seconds, summed
                             "robot_trajectory": round(float(jerk.get("seconds", 0.0)), 3)}}
     if not ctx.quiet:

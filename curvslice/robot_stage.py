@@ -7,6 +7,7 @@ joint move between layers) is the only sequential step and is cheap.
 
 from __future__ import annotations
 
+from collections import Counter
 from typing import Any
 
 import numpy as np
@@ -15,7 +16,8 @@ import trimesh
 from curvslice.collision import PART_BLOCK, CollisionScene
 from curvslice.executors import Executor, InProcess
 from curvslice.jerk import merge_reports, rest_to_rest_time, trajectory_stage
-from curvslice.kinematics import load_robot
+from curvslice.kinematics import Robot, load_robot
+from curvslice.ladder import ladder
 from curvslice.motion import PrintMotion, join_motions, joint_move_time, plan_layer
 from curvslice.workcell import Workcell
 
@@ -37,8 +39,13 @@ def plan_block(values: list[int], *, cell: Workcell, toolpaths: dict[str, np.nda
     robot = load_robot(cell.robot)
     scene = CollisionScene(robot, cell, platform_vertices)
     layer = np.asarray(toolpaths["layer"])
-    graphs = [plan_layer(robot, cell, toolpaths, np.flatnonzero(layer == v), scene.for_layer(layers, v), cost,
-                         max_rotations) for v in values]
+    graphs = []
+    for v in values:
+        rows = np.flatnonzero(layer == v)
+        graph = plan_layer(robot, cell, toolpaths, rows, scene.for_layer(layers, v), cost, max_rotations)
+        skipped = np.setdiff1d(rows, graph.index)
+        graph.layers[0]["skipped_rows"] = skip_reasons(robot, cell, scene, toolpaths, skipped) if len(skipped) else []
+        graphs.append(graph)
     block = join_motions(graphs, joint_move_time(cell))
     final, report = trajectory_stage(robot, cell, toolpaths, block, trajectory,
                                      lambda value: scene.for_layer(layers, value))
@@ -65,6 +72,37 @@ def plan_robot(cell: Workcell, toolpaths: dict[str, np.ndarray], layers: list[tr
     else:
         final = join_motions([f for _, f, _ in done], rest_to_rest_time(robot, cell))
     return graph, final, merge_reports(robot, cell, graph, final, [r for _, _, r in done], trajectory)
+
+
+#: poses per skipped waypoint whose colliding pairs are named in its reason
+REASON_SAMPLES = 24
+
+
+def skip_reasons(robot: Robot, cell: Workcell, scene: CollisionScene, toolpaths: dict[str, np.ndarray],
+                 rows: np.ndarray) -> list[dict]:
+    """Why each waypoint in ``rows`` (skipped by the graph search even with its axis tilted up to the
+    workcell's bound) has no pose, at its planned axis: no IK solution inside the joint limits at any
+    sampled rotation θ (Eq. 4.3), or every pose collides — with the body pairs in contact most often
+    (over up to :data:`REASON_SAMPLES` poses). ``scene`` carries the layer's obstacles."""
+    positions = np.asarray(toolpaths["positions"], float)
+    normals = np.asarray(toolpaths["normals"], float)
+    out = []
+    for r in rows:
+        q, ok = ladder(robot, cell, positions[r][None], normals[r][None], cell.rotations)
+        nodes = q[0, ok[0]]
+        n = normals[r] / np.linalg.norm(normals[r])
+        entry = {"row": int(r), "layer": int(toolpaths["layer"][r]), "position_mm": np.round(positions[r], 3).tolist(),
+                 "tilt_deg": round(float(np.degrees(np.arccos(np.clip(n[2], -1, 1)))), 2)}
+        if not len(nodes):
+            entry["reason"] = "no IK solution inside the joint limits at any rotation about the nozzle axis"
+        else:
+            sample = nodes[np.linspace(0, len(nodes) - 1, min(REASON_SAMPLES, len(nodes))).astype(int)]
+            counts = Counter(pair for qq in sample for pair in scene.colliding_pairs(qq))
+            top = ", ".join(f"{a}/{b}" for (a, b), _ in counts.most_common(3))
+            entry["reason"] = (f"all {len(nodes)} poses collide, also with the axis tilted up to "
+                               f"{np.degrees(cell.max_axis_deviation):g} deg (most often {top})")
+        out.append(entry)
+    return out
 
 
 class _Blocks:
