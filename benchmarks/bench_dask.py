@@ -1,14 +1,15 @@
-"""The tool-path stage in-process vs on a local Dask cluster, side by side, and the per-layer costs of its
-three tasks (issue 16, benchmarks/SCALING.md).
+"""The tool-path stage (and with ``--model`` the whole slice to tool-paths) in-process vs on a local Dask
+cluster, side by side in one run, and the per-layer costs of the stage (issue 16, benchmarks/SCALING.md).
 
-    PYTHONPATH=. python -m benchmarks.bench_dask /work/data/kitten08_new --workers 2 --repeat 1 [--independent]
+    PYTHONPATH=. python -m benchmarks.bench_dask B --model bunny.stl --workers 2 --rules seam chain --json b.json
 
-On the layers of a slice folder: (1) every layer's :func:`_prepare_layer` (start-independent rings and
-thickness floor), :func:`_fold_layer` (pieces from where the previous layer ended: the sequential chain)
-and :func:`_orient_layer` timed one by one in-process; (2) :func:`plan_toolpaths` in-process and with N
-workers (cluster start-up timed apart), alternating, ``repeat`` times; the arrays must be equal.
-``--independent`` also times a run where every layer starts afresh (``start=None``: the layers no longer
-depend on each other) and reports what that costs in travel between layers. Writes JSON to ``--json``.
+On the layers of a slice folder ``B``: (1) with ``--model``, the whole slice in-process then with N
+workers; (2) per start rule, :func:`plan_toolpaths` in-process then with N workers (cluster start-up
+timed apart); both ``repeat`` times, and the arrays must be equal; (3) per start rule, every layer's
+:func:`_prepare_layer` (rings and thickness floor), :func:`_fold_layer` (pieces: under ``chain`` from
+where the previous layer ended, the sequential fold) and :func:`_orient_layer` timed one by one
+in-process, the travel between layers, and the Amdahl projection of 1-64 dedicated workers (and
+``--project-voxels``). Writes JSON to ``--json``.
 """
 
 from __future__ import annotations
@@ -21,40 +22,40 @@ from pathlib import Path
 
 import numpy as np
 
+from curvslice import pipeline
 from curvslice.executors import open_executor
-from curvslice.pipeline import settings_of
+from curvslice.pipeline import Settings, settings_of
+from curvslice.toolpaths import START_RULES
 from curvslice.toolpaths import plan as tp_plan
 from curvslice.working_surfaces import load_layers
 
 ARRAYS = ("positions", "normals", "layer", "path", "extrusion", "thickness", "bead")
 
 
-def per_layer_costs(layers, settings, rule: str = "chain") -> dict:
+def per_layer_costs(layers, settings) -> dict:
     """CPU seconds (``process_time``: what a dedicated core would take, whatever else runs on this shared
-    machine) of every layer's three tasks run in order in this process, the client's own part, and
-    the travel between consecutive layers (last sample of one to the first of the next). ``rule``: where
-    a layer starts -- ``chain`` (where the previous one ended: the pipeline's rule), ``none`` (its own
-    first ring, independent of the others) or ``seam`` (nearest a fixed point, the part's lowest-x,
-    mid-y corner of its bounding box at the platform: independent of the others, like a slicer's
-    aligned seam)."""
+    machine) of every layer's three parts -- rings (``prepare``), pieces (``fold``), orientations --
+    run in order in this process under ``settings.start_rule``, the client's own part, and the travel
+    between consecutive layers (last sample of one to the first of the next). Under ``chain`` the
+    pieces of a layer wait for the previous layer's (the sequential fold); under ``seam`` a layer's
+    three parts are one task of their own (:func:`~curvslice.toolpaths.plan._layer_toolpaths`)."""
     t0 = time.process_time()
     cleaned = [tp_plan.clean_surface(m) for m in layers]
     supports = [tp_plan.layer_support(s) for s in cleaned]
+    seam = tp_plan.seam_line(cleaned)
     client = time.process_time() - t0
     prep, fold, orient, ends = [], [], [], []
     wall = time.perf_counter()
     previous = None
-    lo, hi = np.min([m.bounds[0] for m in cleaned if len(m.faces)], axis=0), \
-        np.max([m.bounds[1] for m in cleaned if len(m.faces)], axis=0)
-    seam = tp_plan._Folded(None, [], np.array([lo[0], 0.5 * (lo[1] + hi[1]), 0.0]), 0, 0, 0.0)
     for k in range(len(cleaned)):
         t = time.process_time()
         p = tp_plan._prepare_layer(k, cleaned, supports, settings)
         t1 = time.process_time()
-        start = previous if rule == "chain" else None if rule == "none" else seam
-        f = tp_plan._fold_layer(p, start, k, cleaned, settings)
-        if rule != "chain" and previous is not None:  # path ids still numbered on (no effect on geometry)
-            f.first_path, f.next_path = previous.next_path, previous.next_path + len(f.samples)
+        if settings.start_rule == "chain":
+            f = tp_plan._fold_layer(p, previous, k, cleaned, settings)
+        else:
+            f = tp_plan._fold_layer(p, None, k, cleaned, settings, start=tp_plan.seam_start(cleaned[k], seam),
+                                    backward=k % 2 == 1)
         t2 = time.process_time()
         arrays, _, _, _ = tp_plan._orient_layer(k, f, cleaned, supports, settings)
         t3 = time.process_time()
@@ -63,16 +64,17 @@ def per_layer_costs(layers, settings, rule: str = "chain") -> dict:
             ends.append((arrays["positions"][0], arrays["positions"][-1]))
         previous = f
     between = [float(np.linalg.norm(b[0] - a[1])) for a, b in zip(ends[:-1], ends[1:])]
-    return {"layers": len(cleaned), "client_s": client, "prepare_s": prep, "fold_s": fold, "orient_s": orient,
-            "wall_s": time.perf_counter() - wall, "travel_between_layers_mm": float(np.sum(between))}
+    return {"rule": settings.start_rule, "layers": len(cleaned), "client_s": client, "prepare_s": prep, "fold_s": fold,
+            "orient_s": orient, "wall_s": time.perf_counter() - wall, "travel_between_layers_mm": float(np.sum(between))}
 
 
 def amdahl(costs: dict, workers: tuple[int, ...] = (1, 2, 4, 8, 16, 32, 64), sequential_s: float = 0.0,
            parallel_s: float = 0.0, scale: float = 1.0, chained: bool = True) -> list[dict]:
     """Projected seconds on N dedicated workers: the tool-path stage by :func:`makespan` of the measured
     per-layer costs, and with ``sequential_s`` / ``parallel_s`` the stages before it (the field and the
-    layers' separation; the layers' contouring and trimming, split N ways), all times ``scale``. The
-    chain of folds is the sequential part (Amdahl): no number of workers beats it."""
+    layers' separation; the layers' contouring and trimming, split N ways), all times ``scale``. Under the
+    ``chain`` rule the chain of folds is a sequential part (Amdahl): no number of workers beats it; under
+    ``seam`` the largest layer bounds the stage."""
     one = makespan(costs, 1, scale) + (sequential_s + parallel_s) * scale
     rows = []
     for n in workers:
@@ -86,10 +88,16 @@ def amdahl(costs: dict, workers: tuple[int, ...] = (1, 2, 4, 8, 16, 32, 64), seq
 def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True) -> float:
     """Seconds the tool-path stage takes on ``n`` dedicated workers under the task priorities of
     :func:`plan_toolpaths` (folds 2, preparations 1, orientations 0; ties in submission order), by list
-    scheduling the measured per-layer costs (no transfer or scheduler overhead). ``chained=False``: a
-    start rule that does not depend on the previous layer (no fold waits for the one before)."""
+    scheduling the measured per-layer costs (no transfer or scheduler overhead). ``chained=False``: the
+    ``seam`` rule, one task per layer (its three parts) in submission order on the first free worker."""
     prep, fold, orient = ([c * scale for c in costs[k]] for k in ("prepare_s", "fold_s", "orient_s"))
     m = len(prep)
+    if not chained:
+        free = [0.0] * n
+        for k in range(m):
+            w = int(np.argmin(free))
+            free[w] += prep[k] + fold[k] + orient[k]
+        return max(free) + costs["client_s"] * scale
     done: dict[tuple[str, int], float] = {}
     free = [0.0] * n
     todo = [("fold", k) for k in range(m)] + [("prep", k) for k in range(m)] + [("orient", k) for k in range(m)]
@@ -141,74 +149,117 @@ def timed_run(layers, settings, workers: int | None) -> dict:
             "loadavg": os.getloadavg(), "toolpaths": tp}
 
 
+def whole_run(model: Path, settings: Settings, workers: int | None) -> dict:
+    """Wall seconds of the whole slice to tool-paths (field, layers, tool-paths; no files written)
+    in-process or on a local cluster of ``workers`` (cluster start-up and the workers' imports apart)."""
+    t = time.perf_counter()
+    with open_executor(workers=workers) as ex:
+        if workers:
+            ex.client.run(_import_plan)
+        up = time.perf_counter() - t
+        t = time.perf_counter()
+        result = pipeline.run(model, settings, until="toolpaths", executor=ex)
+        wall = time.perf_counter() - t
+    return {"workers": workers or 0, "startup_s": round(up, 3), "slice_s": round(wall, 3),
+            "timings_s": result.report["timings_s"], "loadavg": os.getloadavg(), "slice": result}
+
+
+def _same_slice(a, b) -> bool:
+    """The field and every tool-path array equal."""
+    return np.array_equal(a.results["field"].growing, b.results["field"].growing) and \
+        all(np.array_equal(getattr(a.toolpaths, k), getattr(b.toolpaths, k)) for k in ARRAYS)
+
+
+def _ratio(runs: list[dict], key: str) -> float:
+    """Median in-process over median with workers of ``key``."""
+    one = np.median([r[key] for r in runs if r["workers"] == 0])
+    many = np.median([r[key] for r in runs if r["workers"]])
+    return round(float(one / many), 3)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("folder", help="slice folder with layers/ (e.g. /work/data/kitten08_new)")
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--repeat", type=int, default=1)
-    ap.add_argument("--independent", nargs="*", default=[], choices=("none", "seam"),
-                    help="also measure these start rules (travel between layers)")
+    ap.add_argument("--rules", nargs="+", default=["seam"], choices=START_RULES,
+                    help="start rules to time side by side and cost per layer (travel between layers)")
+    ap.add_argument("--model", help="also time the whole slice of this model to tool-paths, in-process vs "
+                    "workers, in the same run (with the folder's settings)")
     ap.add_argument("--skip-costs", action="store_true")
     ap.add_argument("--json", default=None)
     ap.add_argument("--separation-s", type=float, default=0.0,
                     help="seconds of the layers' separation (sequential) within the report's trimming_s")
-    ap.add_argument("--costs-from", help="per-layer costs from this earlier --json output instead of measuring")
     ap.add_argument("--project-voxels", type=float, nargs="*", default=[],
                     help="also project a part of this many voxels from the measured per-layer costs (resize)")
     args = ap.parse_args()
     folder = Path(args.folder)
     layers = load_layers(folder)
-    settings = settings_of(folder).toolpath_settings()
-    out = {"folder": str(folder), "loadavg_before": os.getloadavg(), "cpus": os.cpu_count(), "runs": []}
-    for r in range(args.repeat):
-        for workers in (None, args.workers):
-            run = timed_run(layers, settings, workers)
-            tp = run.pop("toolpaths")
-            out["runs"].append(run)
-            print(run, flush=True)
-            if workers is None:
-                reference = tp
-            else:
-                same = all(np.array_equal(getattr(reference, k), getattr(tp, k)) for k in ARRAYS)
-                out["runs"][-1]["identical"] = same
-                print("identical arrays:", same, flush=True)
-    if out["runs"]:
-        for key in ("stage_s", "client_cpu_s"):
-            inproc = np.median([r[key] for r in out["runs"] if r["workers"] == 0])
-            dask = np.median([r[key] + (r["workers_cpu_s"] if key != "stage_s" else 0.0)
-                              for r in out["runs"] if r["workers"]])
-            out["ratio_" + key] = round(float(inproc / dask), 3)
-        print("in-process / with workers: wall %.3f, CPU seconds %.3f" % (out["ratio_stage_s"], out["ratio_client_cpu_s"]))
-    if not args.skip_costs:
-        costs = json.loads(Path(args.costs_from).read_text())["costs"] if args.costs_from else \
-            per_layer_costs(layers, settings)
-        out["costs"] = costs
+    base = settings_of(folder)
+    out = {"folder": str(folder), "loadavg_before": os.getloadavg(), "cpus": os.cpu_count(), "runs": [],
+           "whole": []}
+    for _ in range(args.repeat):
+        if args.model:
+            for workers in (None, args.workers):
+                run = whole_run(Path(args.model), base.replace(start_rule=args.rules[0]), workers)
+                s = run.pop("slice")
+                out["whole"].append(run)
+                if workers is None:
+                    reference = s
+                else:
+                    out["whole"][-1]["identical"] = _same_slice(reference, s)
+                print(out["whole"][-1], flush=True)
+        for rule in args.rules:
+            settings = base.replace(start_rule=rule).toolpath_settings()
+            for workers in (None, args.workers):
+                run = timed_run(layers, settings, workers)
+                tp = run.pop("toolpaths")
+                run["rule"] = rule
+                out["runs"].append(run)
+                if workers is None:
+                    reference = tp
+                else:
+                    run["identical"] = all(np.array_equal(getattr(reference, k), getattr(tp, k)) for k in ARRAYS)
+                print(run, flush=True)
+    if out["whole"]:
+        out["ratio_slice_s"] = _ratio(out["whole"], "slice_s")
+        print("whole slice to tool-paths, in-process / with workers: wall %.3f" % out["ratio_slice_s"])
+    for rule in args.rules:
+        runs = [r for r in out["runs"] if r["rule"] == rule]
+        if runs:
+            out[f"ratio_stage_s_{rule}"] = _ratio(runs, "stage_s")
+            for r in runs:
+                r["cpu_s"] = r["client_cpu_s"] + r["workers_cpu_s"]
+            out[f"ratio_cpu_s_{rule}"] = _ratio(runs, "cpu_s")
+            print("tool-path stage, %s rule, in-process / with workers: wall %.3f, CPU seconds %.3f"
+                  % (rule, out[f"ratio_stage_s_{rule}"], out[f"ratio_cpu_s_{rule}"]))
+    if args.skip_costs:
+        out["loadavg_after"] = os.getloadavg()
+        if args.json:
+            Path(args.json).write_text(json.dumps(out, indent=1, default=float))
+        return
+    report = json.loads((folder / "report.json").read_text())
+    field = sum(report["timings_s"].get(k, 0.0) for k in ("load", "voxelize", "peeling", "growing"))
+    split = report["layers"]  # contouring + trimming run per layer; separation and set-up do not
+    par = split["dual_contouring_s"] + split["trimming_s"] - args.separation_s
+    seq = field + report["timings_s"]["layers"] - par
+    out["projection"] = {"field_and_layers_wall_s": [seq, par]}
+    for rule in args.rules:
+        costs = per_layer_costs(layers, base.replace(start_rule=rule).toolpath_settings())
+        out[f"costs_{rule}"] = costs
         total = sum(costs["prepare_s"]) + sum(costs["fold_s"]) + sum(costs["orient_s"]) + costs["client_s"]
-        print({k: round(sum(v), 2) if isinstance(v, list) else v for k, v in costs.items()},
-              "fold share %.3f" % (sum(costs["fold_s"]) / total))
-        for rule in args.independent:
-            ind = per_layer_costs(layers, settings, rule)
-            out[f"start_{rule}"] = {"travel_between_layers_mm": ind["travel_between_layers_mm"],
-                                    "fold_s": sum(ind["fold_s"])}
-            print(f"start rule {rule}: travel between layers %.1f mm (chained: %.1f mm)"
-                  % (ind["travel_between_layers_mm"], costs["travel_between_layers_mm"]))
-        report = json.loads((folder / "report.json").read_text())
-        field = sum(report["timings_s"].get(k, 0.0) for k in ("load", "voxelize", "peeling", "growing"))
-        split = report["layers"]  # contouring + trimming run per layer; separation and set-up do not
-        par = split["dual_contouring_s"] + split["trimming_s"] - args.separation_s
-        seq = field + report["timings_s"]["layers"] - par
+        print(rule, {k: round(sum(v), 2) if isinstance(v, list) else v for k, v in costs.items()},
+              "fold share %.3f" % (sum(costs["fold_s"]) / total), flush=True)
+        # the field and layers stages' wall seconds of the folder's report, as CPU seconds at this run's share
         cpu_share = sum(costs["prepare_s"] + costs["fold_s"] + costs["orient_s"]) / costs["wall_s"]
-        out["projection"] = {"field_and_layers_wall_s": [seq, par], "cpu_share_of_wall": cpu_share}
         for voxels in [report["field"]["voxels"]] + args.project_voxels:
             factor = voxels / report["field"]["voxels"]
-            c = resize(costs, factor)
-            for chained in (True, False):
-                rows = amdahl(c, sequential_s=seq * cpu_share * factor, parallel_s=par * cpu_share * factor,
-                              chained=chained)
-                out["projection"][f"{int(voxels)} voxels, {'chained' if chained else 'independent'} starts"] = rows
-                print(int(voxels), "voxels", "chained" if chained else "independent", flush=True)
-                for row in rows:
-                    print(row)
+            rows = amdahl(resize(costs, factor), sequential_s=seq * cpu_share * factor,
+                          parallel_s=par * cpu_share * factor, chained=rule == "chain")
+            out["projection"][f"{int(voxels)} voxels, {rule} rule"] = rows
+            print(int(voxels), "voxels,", rule, "rule (CPU share %.2f)" % cpu_share, flush=True)
+            for row in rows:
+                print(row)
     out["loadavg_after"] = os.getloadavg()
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1, default=float))

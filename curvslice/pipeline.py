@@ -44,7 +44,7 @@ from curvslice.peeling_field import peeling_field
 from curvslice.platform import DEFAULT_MARGIN, DEFAULT_THICKNESS, disc_platform, load_platform
 from curvslice.solid import load_solid
 from curvslice.validate import check_number
-from curvslice.toolpaths import Toolpaths, ToolpathSettings, plan_toolpaths, save_toolpaths
+from curvslice.toolpaths import START_RULES, Toolpaths, ToolpathSettings, plan_toolpaths, save_toolpaths
 from curvslice.verify.toolpaths import layer_cover
 from curvslice.voxelize import VoxelGrid, voxelize
 from curvslice.working_surfaces import extract_working_surfaces, layer_levels, load_layers, write_layers
@@ -108,6 +108,9 @@ class Settings:
                               hi=float(np.radians(89.0)))
     gap_passes: bool = setting(True, "extra passes through the gaps the spirals leave (§3.7)", "toolpaths",
                                flag="--no-gap-passes", negate=True)
+    start_rule: str = setting("seam", "where each layer's spiral starts: seam (nearest the part's seam line: layers "
+                              "are independent tasks that scale over workers) or chain (nearest where the previous "
+                              "layer ended: slightly less travel, but a sequential fold)", "toolpaths", choices=START_RULES)
     # robot (§3.5.3, §4.3.1)
     robot: str | None = setting(None, "workcell: ur3, ur5, ur10, irb120 (shipped) or a workcell JSON file; "
                                 "without it the robot stage is skipped", "robot")
@@ -159,7 +162,7 @@ class Settings:
         """The tool-path stage's parameters; the path width defaults to voxel / 0.8 (the nozzle of §3.6)."""
         return ToolpathSettings(path_width=self.path_width or self.voxel / 0.8, step=self.step,
                                 filament_diameter=self.filament, feed=self.feed, max_tilt=self.max_tilt,
-                                fill_gaps=self.gap_passes)
+                                fill_gaps=self.gap_passes, start_rule=self.start_rule)
 
 
 # ---------------------------------------------------------------------------------------------- results

@@ -19,8 +19,8 @@ from curvslice.cli import main
 ROOT = Path(__file__).resolve().parents[1]
 TEE = ROOT / "models" / "tee.stl"
 ARGS = ["--voxel", "2", "--stages", "toolpaths", "--quiet"]
-#: Task-name prefixes of the per-layer work (working surfaces, tool-paths).
-LAYER_TASKS = ("_contour_layer", "_prepare_layer", "_fold_layer", "_orient_layer")
+#: Task-name prefixes of the per-layer work (working surfaces, tool-paths under either start rule).
+LAYER_TASKS = ("_contour_layer", "_layer_toolpaths", "_prepare_layer", "_fold_layer", "_orient_layer")
 
 
 def _arrays(folder: Path) -> dict[str, np.ndarray]:
@@ -59,6 +59,17 @@ def test_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):
     strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
     reports = [json.loads((f / "report.json").read_text()) for f in (in_process, out)]
     assert strip(reports[0]["toolpaths"]["per_layer"]) == strip(reports[1]["toolpaths"]["per_layer"])
+
+
+def test_chain_start_rule_on_a_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):
+    """The ``chain`` rule (each layer's pieces wait for the previous layer's: a fold of tasks next to the
+    parallel ones) gives the in-process arrays on two workers too, and differs from the default ``seam``."""
+    chain = [*ARGS, "--start-rule", "chain"]
+    assert main(["slice", str(TEE), *chain, "--out", str(tmp_path / "a")]) == 0
+    assert main(["slice", str(TEE), *chain, "--out", str(tmp_path / "b"), "--workers", "2"]) == 0
+    _assert_same(tmp_path / "a", tmp_path / "b")
+    seam, chain = (_arrays(f)["toolpaths.npz:positions"] for f in (in_process, tmp_path / "a"))
+    assert seam.shape != chain.shape or not np.array_equal(seam, chain)
 
 
 @pytest.mark.dask_cluster

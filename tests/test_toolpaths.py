@@ -200,6 +200,30 @@ def test_stage_output_passes_the_verifier_and_corruption_is_caught(tmp_path):
     assert not broken["samples on layers"].passed
 
 
+@pytest.mark.parametrize("rule", ["seam", "chain"])
+def test_start_rules_start_each_layer_at_the_seam_or_where_the_previous_ended(rule):
+    """Four discs 0.9 mm apart, each shifted 1.5 mm in x. ``seam``: every even layer starts, every odd
+    one (printed backward) ends, within a spiral cut (≤ 3 widths) of its boundary point nearest the
+    seam line, x = the lowest x of all layers (-12 mm, layer 1), y = 0: the layer's own geometry, no other
+    layer's paths. ``chain``: every layer starts within a cut of where the previous one ended."""
+    from curvslice.toolpaths import ToolpathSettings, plan_toolpaths
+
+    base = polygon_mesh(sg.Point(0, 0).buffer(12.0, 128), 0.7)
+    layers = [trimesh.Trimesh(base.vertices + [1.5 * k, 0.0, 0.9 * (k + 1)], base.faces, process=False) for k in range(4)]
+    tp = plan_toolpaths(layers, ToolpathSettings(path_width=1.0, start_rule=rule))
+    ends = [(tp.positions[tp.layer == k + 1][0], tp.positions[tp.layer == k + 1][-1]) for k in range(4)]
+    cut = 3.5  # the spiral's cut (≤ 3 widths) plus the outer ring's 0.45 w inside the boundary
+    if rule == "seam":
+        seam_points = [np.array([1.5 * k - 12.0, 0.0]) for k in range(4)]  # boundary points nearest (-12, 0)
+        at_seam = [ends[k][k % 2][:2] for k in range(4)]
+        assert all(np.linalg.norm(a - b) <= cut for a, b in zip(at_seam, seam_points)), at_seam
+        far = [np.linalg.norm(ends[k][1 - k % 2][:2] - seam_points[k]) for k in range(4)]
+        assert max(far) <= cut  # one connected spiral per disc: it ends next to where it starts
+    else:
+        gaps = [np.linalg.norm(ends[k + 1][0][:2] - ends[k][1][:2]) for k in range(3)]
+        assert max(gaps) <= cut, gaps
+
+
 def test_cli_slice_writes_toolpaths_and_report(tmp_path):
     """`curvslice slice --stages toolpaths` on a small dome: G-code, npz contract keys, report."""
     import json

@@ -28,18 +28,19 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9), one module per
    conservation, :func:`curvslice.flow.filament_length`).
 
 :mod:`~curvslice.toolpaths.plan` runs these per layer (:func:`layer_paths`) and over all layers
-with orientations and thickness (:func:`plan_toolpaths`), and writes the files
+with orientations and thickness (:func:`plan_toolpaths`; each layer's spiral starts nearest the
+part's seam line, or where the previous layer ended: :data:`START_RULES`), and writes the files
 (:func:`save_toolpaths`); every tuning constant is in :mod:`~curvslice.toolpaths.constants`.
 """
 
 from curvslice.toolpaths.beads import fill_slivers, fit_beads, needed_pieces, surface_samples
 from curvslice.toolpaths.passes import gap_passes, thin_passes, uncross
-from curvslice.toolpaths.plan import (LayerPaths, ToolpathSettings, Toolpaths, bridge_small_holes, clean_surface,
-                                      layer_paths, plan_toolpaths, save_toolpaths)
+from curvslice.toolpaths.plan import (START_RULES, LayerPaths, ToolpathSettings, Toolpaths, bridge_small_holes,
+                                      clean_surface, layer_paths, plan_toolpaths, save_toolpaths)
 from curvslice.toolpaths.resampling import extrusion_amounts, resample
 from curvslice.toolpaths.rings import Bands, Ring, contour_gap, contour_rings, peak_rings, prune_islands
 
-__all__ = ["Bands", "LayerPaths", "Ring", "ToolpathSettings", "Toolpaths", "bridge_small_holes", "clean_surface",
+__all__ = ["START_RULES", "Bands", "LayerPaths", "Ring", "ToolpathSettings", "Toolpaths", "bridge_small_holes", "clean_surface",
            "contour_gap", "contour_rings", "extrusion_amounts", "fill_slivers", "fit_beads", "gap_passes",
            "layer_paths", "needed_pieces", "peak_rings", "plan_toolpaths", "prune_islands", "resample",
            "save_toolpaths", "surface_samples", "thin_passes", "uncross"]

@@ -178,8 +178,8 @@ def layer_rings(mesh: trimesh.Trimesh, width: float,
 
 def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, fill_gaps: bool = True,
                  min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerPaths:
-    """The part of :func:`layer_paths` that depends on ``start`` (where the previous layer ended): the
-    connected spirals from the rings, the beads, and the order of the pieces."""
+    """The part of :func:`layer_paths` that depends on ``start`` (the seam, or where the previous layer
+    ended): the connected spirals from the rings, the beads, and the order of the pieces."""
     if r.rings is None:
         return LayerPaths(pieces=[])
     surface, v, f, bridged, rings, lines, thin, closed, top = (r.surface, r.v, r.f, r.bridged, r.rings, r.lines,
@@ -223,6 +223,13 @@ def _order_pieces(pieces: list[np.ndarray], widths: list[np.ndarray],
 # ----------------------------------------------------------------------------- all layers
 
 
+#: Where each layer's spiral starts. ``seam``: nearest the part's seam line (:func:`seam_start`), from
+#: the layer's own geometry, so every layer's tool-paths are one independent task (they scale over
+#: workers); ``chain``: nearest where the previous layer ended (§3.3.2 item 2, the least travel between
+#: layers, but each layer waits for the one before: a sequential fold).
+START_RULES = ("seam", "chain")
+
+
 @dataclass(frozen=True)
 class ToolpathSettings:
     """Parameters of the tool-path stage (mm, mm/min, radians)."""
@@ -237,6 +244,9 @@ class ToolpathSettings:
     max_tilt: float = float(np.radians(40.0))
     window: int = 8  #: earlier layers searched for the closest point (Eq. 3.3)
     fill_gaps: bool = True  #: extra passes through strips the spirals leave open (more jumps)
+    #: where a layer's spiral starts (:data:`START_RULES`): ``seam`` (nearest the part's seam line,
+    #: every layer on its own) or ``chain`` (nearest where the previous layer ended)
+    start_rule: str = "seam"
 
     def __post_init__(self) -> None:
         for name in ("path_width", "step", "filament_diameter", "feed", "max_angle", "max_tilt"):
@@ -244,6 +254,8 @@ class ToolpathSettings:
                 raise CurvsliceError(f"tool-path setting {name} must be positive (got {getattr(self, name)})")
         if not self.max_tilt < np.pi / 2:
             raise CurvsliceError("the largest tilt from the layer normal must be below 90° (else the nozzle could point into printed material)")
+        if self.start_rule not in START_RULES:
+            raise CurvsliceError(f"tool-path start rule must be one of {', '.join(START_RULES)} (got {self.start_rule!r})")
         if not 0 < self.min_thickness <= self.max_thickness <= 1.0:
             raise CurvsliceError("layer thickness clamps need 0 < min_thickness <= max_thickness <= 1 (shares of the path width)")
     min_thickness: float = 0.1  #: local layer thickness clamp, as a share of the path width
@@ -302,6 +314,28 @@ def _earlier(supports: list[tuple[np.ndarray, cKDTree | None, float]], k: int, w
     return [s for s in supports[:k] if len(s[0])][-window:]
 
 
+def seam_line(surfaces: list[trimesh.Trimesh]) -> np.ndarray:
+    """The ``(x, y)`` of the part's seam line: the lowest-x, mid-y side of all layers' bounding box (like a
+    slicer's aligned seam). Fixed data of the whole stage, computed before any layer's task."""
+    bounds = [m.bounds for m in surfaces if len(m.faces)]
+    if not bounds:
+        return np.zeros(2)
+    lo, hi = np.min([b[0] for b in bounds], axis=0), np.max([b[1] for b in bounds], axis=0)
+    return np.array([lo[0], 0.5 * (lo[1] + hi[1])])
+
+
+def seam_start(surface: trimesh.Trimesh, seam: np.ndarray) -> np.ndarray:
+    """Where layer ``surface``'s spirals are rooted and cut under the ``seam`` rule: the point of the
+    seam line at the layer's median height. It depends on the layer's own geometry and the fixed seam
+    line only, never on another layer's paths, so layers need not wait for each other. A connected
+    Fermat spiral ends next to where it starts (§3.5.1), and every other layer is printed backward
+    (:func:`_layer_toolpaths`), so a layer that ends at the seam is followed by one that starts there,
+    and one that ends after its last (farthest) piece by one that starts at its own, on similar
+    geometry nearby: the travel between layers stays short (measured: benchmarks/SCALING.md)."""
+    z = float(np.median(surface.vertices[:, 2])) if len(surface.vertices) else 0.0
+    return np.array([seam[0], seam[1], z])
+
+
 @dataclass
 class _Prepared:
     """The start-independent work of one layer (:func:`_prepare_layer`)."""
@@ -313,14 +347,12 @@ class _Prepared:
 
 @dataclass
 class _Folded:
-    """One layer's pieces (:func:`_fold_layer`), where it ends, its first path id, and the seconds of
-    its :func:`_prepare_layer` and :func:`_fold_layer` tasks."""
+    """One layer's pieces (:func:`_fold_layer`), where it ends, and the seconds of its
+    :func:`_prepare_layer` and :func:`_fold_layer` work."""
 
     paths: LayerPaths
     samples: list[np.ndarray]
     cursor: np.ndarray | None
-    first_path: int
-    next_path: int
     seconds: float
 
 
@@ -337,11 +369,12 @@ def _prepare_layer(k: int, surfaces: list[trimesh.Trimesh], supports: list, sett
 
 
 def _fold_layer(prepared: _Prepared, previous: _Folded | None, k: int, surfaces: list[trimesh.Trimesh],
-                settings: ToolpathSettings) -> _Folded:
-    """Layer ``k``'s pieces from where the previous layer ended: the sequential part of the stage."""
+                settings: ToolpathSettings, start: np.ndarray | None = None, backward: bool = False) -> _Folded:
+    """Layer ``k``'s pieces from ``start``, or (the ``chain`` rule) from where ``previous`` ended: then
+    the sequential part of the stage. ``backward``: printed in reverse, so that it ends at ``start``."""
     t0 = perf_counter()
     w, surface = settings.path_width, surfaces[k]
-    cursor, next_path = (previous.cursor, previous.next_path) if previous is not None else (None, 0)
+    cursor = previous.cursor if previous is not None else start
     vertex_thickness = prepared.vertex_thickness
     vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
 
@@ -349,17 +382,20 @@ def _fold_layer(prepared: _Prepared, previous: _Folded | None, k: int, surfaces:
         return vertex_thickness[vertex_tree.query(points)[1]]
 
     paths = layer_pieces(prepared.rings, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
+    if backward:  # the same pieces printed the other way round: the layer ends where it would start
+        paths.pieces, paths.widths = [p[::-1] for p in paths.pieces[::-1]], [b[::-1] for b in paths.widths[::-1]]
     samples = [resample(np.c_[p, b], settings.step, WIDTH_WEIGHT, TURN_WEIGHT * w) for p, b in zip(paths.pieces, paths.widths)]
     samples = [s for s in samples if len(s) >= 2]
     if samples:
         cursor = samples[-1][-1, :3]
-    return _Folded(paths, samples, cursor, next_path, next_path + len(samples), prepared.seconds + perf_counter() - t0)
+    return _Folded(paths, samples, cursor, prepared.seconds + perf_counter() - t0)
 
 
 def _orient_layer(k: int, folded: _Folded, surfaces: list[trimesh.Trimesh], supports: list,
                   settings: ToolpathSettings) -> tuple[dict[str, np.ndarray], dict[str, float], float, float]:
     """Layer ``k``'s orientations (Eq. 3.3), thickness and beads per sample: a parallel task once its
-    pieces are known. Returns its arrays, its report row, and the seconds of its pieces and of this."""
+    pieces are known. Returns its arrays (path ids from 0 within the layer), its report row, and the
+    seconds of its pieces and of this."""
     t1 = perf_counter()
     w, surface, paths, samples = settings.path_width, surfaces[k], folded.paths, folded.samples
     tri, own_tree, _ = supports[k]
@@ -374,7 +410,7 @@ def _orient_layer(k: int, folded: _Folded, surfaces: list[trimesh.Trimesh], supp
     if samples:
         q = np.vstack(samples)
         q, bead = q[:, :3], q[:, 3]
-        pid = folded.first_path + piece_labels(samples)
+        pid = piece_labels(samples)
         q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer
         surface_normal = ori.surface_normals(surface, q, own_face)
         closest, dist = _thickness(q, earlier)
@@ -400,6 +436,16 @@ def _orient_layer(k: int, folded: _Folded, surfaces: list[trimesh.Trimesh], supp
     return out, row, folded.seconds, perf_counter() - t1
 
 
+def _layer_toolpaths(k: int, seam: np.ndarray, surfaces: list[trimesh.Trimesh], supports: list,
+                     settings: ToolpathSettings) -> tuple[dict[str, np.ndarray], dict[str, float], float, float]:
+    """All of layer ``k``'s tool-path work under the ``seam`` rule, one task: rings, pieces from
+    :func:`seam_start` (odd ``k``: printed backward, to end there), orientations (what
+    :func:`_orient_layer` returns)."""
+    prepared = _prepare_layer(k, surfaces, supports, settings)
+    folded = _fold_layer(prepared, None, k, surfaces, settings, start=seam_start(surfaces[k], seam), backward=k % 2 == 1)
+    return _orient_layer(k, folded, surfaces, supports, settings)
+
+
 def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings = ToolpathSettings(),
                    progress=None, executor: Executor | None = None) -> Toolpaths:
     """Tool-paths, orientations and extrusion for working surfaces in print order (§3.5.1-3.5.2).
@@ -407,27 +453,37 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     Layer 1 stands on the platform top ``z = 0``; every later layer also on the ``window``
     layers before it (Eq. 3.3). ``progress`` is an optional tqdm-like object updated per layer.
 
-    Three tasks per layer on ``executor`` (default: in-process, in order): the start-independent
-    rings and thickness floor, then -- a chain, since each layer starts where the previous one ended --
-    its pieces, then its orientations; every executor gives the same arrays.
+    Tasks on ``executor`` (default: in-process, in order); every executor gives the same arrays. Under
+    the ``seam`` start rule one independent task per layer (:func:`_layer_toolpaths`); under ``chain``
+    three: the start-independent rings and thickness floor, then -- a chain, since each layer starts
+    where the previous one ended -- its pieces, then its orientations. Only the concatenation (path
+    ids numbered on over the layers) is sequential.
     """
     ex = executor if executor is not None else InProcess()
     cleaned = [clean_surface(mesh) for mesh in surfaces]
     supports = [layer_support(surface) for surface in cleaned]
     shared = {"surfaces": ex.share(cleaned), "settings": settings}
     shared_supports = ex.share(supports)
-    prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=1, **shared)
-                for k in range(len(cleaned))]
-    folded, previous = [], None
-    for k, p in enumerate(prepared):
-        previous = ex.submit(_fold_layer, p, previous, k, priority=2, **shared)
-        folded.append(previous)
-    oriented = [ex.submit(_orient_layer, k, f, supports=shared_supports, **shared) for k, f in enumerate(folded)]
+    if settings.start_rule == "seam":
+        seam = seam_line(cleaned)
+        oriented = [ex.submit(_layer_toolpaths, k, seam, supports=shared_supports, **shared) for k in range(len(cleaned))]
+    else:
+        prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=1, **shared)
+                    for k in range(len(cleaned))]
+        folded, previous = [], None
+        for k, p in enumerate(prepared):
+            previous = ex.submit(_fold_layer, p, previous, k, priority=2, **shared)
+            folded.append(previous)
+        oriented = [ex.submit(_orient_layer, k, f, supports=shared_supports, **shared) for k, f in enumerate(folded)]
     layers = ex.gather(oriented, progress)
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness", "bead")}
     per_layer: list[dict[str, float]] = []
     seconds = {"spirals": 0.0, "orientation": 0.0}
+    first_path = 0
     for arrays, row, spirals_s, orient_s in layers:
+        if "path" in arrays:
+            arrays["path"] = arrays["path"] + np.int32(first_path)
+        first_path += row["pieces"]
         for name, values in arrays.items():
             out[name].append(values)
         seconds["spirals"] += spirals_s
