@@ -6,21 +6,23 @@ printed so far (the union of earlier layers; both carried by the flange through 
 static extruder (nozzle frame N) and obstacles (base frame B). Checked pairs: robot self-collision
 (except the pairs the robot declares allowed), every robot link and every carried body against every
 static body, and the carried bodies against every link except the one they are mounted on.
-A bounding-box test, vectorized over poses, sends only overlapping pairs to fcl; with ``bounds``
-the conservative sphere proxy of :mod:`curvslice.collision_estimate` prunes the pairs further (a
-pair it proves apart cannot touch, so every answer is still fcl's).
+A bounding-box test, vectorized over poses, sends only overlapping pairs on; with ``bounds`` (the
+default) the conservative sphere / distance-field proxy of :mod:`curvslice.collision_estimate`
+prunes them further, for the whole batch at once (a pair it proves apart cannot touch, so every
+answer is still fcl's). A pair between a carried and a static body depends only on their relative
+pose (for a cylinder or cone, only on its axis and centre): fcl tests each distinct one once.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import fcl
 import numpy as np
 import trimesh
 
-from curvslice.collision_estimate import SphereBounds
-from curvslice.kinematics import Robot, fk, link_placements
+from curvslice.collision_estimate import CarriedBounds, SphereBounds, carried_bounds
+from curvslice.kinematics import Robot, fk, link_placements, rigid_inverse
 from curvslice.workcell import Body, Workcell
 
 
@@ -56,7 +58,17 @@ def _body_shape(body: Body) -> _Shape:
 
 
 def _set(obj: fcl.CollisionObject, T: np.ndarray) -> None:
-    obj.setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
+    obj.setRotation(T[:3, :3])  # (twice as fast as building an fcl.Transform)
+    obj.setTranslation(T[:3, 3])
+
+
+def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of integer ``key`` (n, m): the index of one row per distinct value, and each row's group."""
+    order = np.lexsort(key.T)
+    new = np.r_[True, (key[order[1:]] != key[order[:-1]]).any(axis=1)]
+    group = np.empty(len(key), np.int64)
+    group[order] = np.cumsum(new) - 1
+    return order[new], group
 
 
 def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -> trimesh.Trimesh:
@@ -73,13 +85,24 @@ def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -
 PROBES = 24
 #: printed layers per BVH of the carried part (see :meth:`CollisionScene.for_layer`)
 PART_BLOCK = 16
+#: cells of the part's distance field along its longest side at most (cells ≥ 0.5 mm)
+FIELD_CELLS = 160
+
+
+@dataclass(frozen=True, eq=False)
+class _Piece:
+    """A piece of the printed part: its fcl body and what the proxy knows of it."""
+
+    shape: _Shape
+    bounds: CarriedBounds | None
+    answers: dict = field(default_factory=dict)  # fcl's answers against static bodies, by relative pose
 
 
 class CollisionScene:
     """Collision queries for arm configurations of one robot in one workcell (mm, rad)."""
 
     def __init__(self, robot: Robot, cell: Workcell, platform_vertices: np.ndarray | None = None,
-                 bounds: bool = False):
+                 bounds: bool = True):
         self.robot = robot
         self.mount = cell.platform_mount
         self.links = [_mesh_shape(s.link, s.mesh) for s in robot.links]
@@ -95,9 +118,12 @@ class CollisionScene:
             _set(shape.obj, pose)
         platform = platform_mesh(cell, platform_vertices)
         self.carried = [_mesh_shape("platform", platform)]
+        self._answers = [{}]  # per carried body: {static body: {relative pose: fcl's answer}}
         self.bounds = SphereBounds(robot, cell, platform) if bounds else None
         self.fcl_configs = 0  # configurations that needed at least one fcl pair test
-        self._blocks: dict[tuple[int, ...], _Shape] = {}  # BVHs of the earlier whole blocks and of the tails after them
+        self._block_key: tuple[int, ...] = ()
+        self._pieces: dict[tuple[int, ...], _Piece] = {}  # the part before the current block, and its tails
+        self._symmetric = [b.kind in ("cylinder", "cone") for b in list(cell.extruder) + list(cell.obstacles)]
         # probes for _inside_box, per connected piece of every link mesh (body frame): up to PROBES
         # of its vertices, the link carrying it, its bounding sphere
         pieces = [(k, piece) for k, s in enumerate(robot.links) for piece in s.mesh.split(only_watertight=False)]
@@ -114,38 +140,39 @@ class CollisionScene:
 
     def set_part(self, mesh: trimesh.Trimesh | None) -> None:
         """The printed part (model frame) carried on the platform; ``None`` or empty removes it."""
-        self._carry([_mesh_shape("part", mesh)] if mesh is not None and len(mesh.faces) else [], mesh)
+        self._carry([self._piece(mesh)] if mesh is not None and len(mesh.faces) else [])
 
-    def _carry(self, parts: list[_Shape], mesh: trimesh.Trimesh | None) -> None:
-        self.carried = self.carried[:1] + parts
+    def _piece(self, mesh: trimesh.Trimesh) -> _Piece:
+        grid = max(0.5, float(mesh.extents.max()) / FIELD_CELLS)
+        return _Piece(_mesh_shape("part", mesh), carried_bounds(mesh, grid) if self.bounds is not None else None)
+
+    def _carry(self, pieces: list[_Piece]) -> None:
+        self.carried = self.carried[:1] + [p.shape for p in pieces]
+        self._answers = self._answers[:1] + [p.answers for p in pieces]
         if self.bounds is not None:
-            self.bounds.set_part(mesh, len(parts))
+            self.bounds.set_pieces([p.bounds for p in pieces])
         self._build_pairs()
 
     def for_layer(self, layers: list[trimesh.Trimesh], layer: int):
         """Carry the union of layers 1..layer-1 (print order) and return :meth:`collisions`.
 
-        The part is carried as two BVHs: the layers before the last multiple of ``PART_BLOCK``
-        (built once per block of layers and reused) and the few layers after it (kept for the block's
-        layers, which are asked for again by the jerk stage's collision rounds); rebuilding the whole
-        part every layer is quadratic in the layers."""
+        The part is carried as two pieces (BVH and distance field): the layers before the last
+        multiple of ``PART_BLOCK`` (built once per block of layers) and the few layers after it
+        (built once per layer of the block: the jerk stage returns to a block's layers round after
+        round); rebuilding the whole part every layer is quadratic in the layers."""
         earlier = layers[: max(layer - 1, 0)]
         cut = len(earlier) // PART_BLOCK * PART_BLOCK
-        parts = []
-        for block, keep in ((earlier[:cut], True), (earlier[cut:], False)):
+        pieces = []
+        for i, block in enumerate((earlier[:cut], earlier[cut:])):
             block = [m for m in block if len(m.faces)]
             key = tuple(id(m) for m in block)
-            shape = self._blocks.get(key)
-            if shape is None and block:
-                shape = _mesh_shape("part", trimesh.util.concatenate(block))
-                if keep:  # a new whole block: the tails of the previous one are not needed again
-                    self._blocks = {key: shape}
-                elif len(self._blocks) <= PART_BLOCK:  # tails: a layer is asked for again (graph, jerk rounds)
-                    self._blocks[key] = shape
-            if shape is not None:
-                parts.append(shape)
-        nonempty = [m for m in earlier if len(m.faces)]
-        self._carry(parts, trimesh.util.concatenate(nonempty) if self.bounds is not None and nonempty else None)
+            if i == 0 and key != self._block_key:  # a new block: the old one and its tails are done
+                self._block_key, self._pieces = key, {}
+            if block and key not in self._pieces:
+                self._pieces[key] = self._piece(trimesh.util.concatenate(block))
+            if block:
+                pieces.append(self._pieces[key])
+        self._carry(pieces)
         return self.collisions
 
     def _build_pairs(self) -> None:
@@ -175,7 +202,7 @@ class CollisionScene:
         static = np.broadcast_to(np.array(self.static_poses).reshape(-1, 4, 4), (n, len(self.static), 4, 4))
         return np.concatenate([links, carried, static], axis=1)
 
-    def collisions(self, q: np.ndarray, chunk: int = 256) -> np.ndarray:
+    def collisions(self, q: np.ndarray, chunk: int = 4096) -> np.ndarray:
         """(n,) bool: True where configuration q[i] (rad) puts any checked pair in contact."""
         q = np.atleast_2d(np.asarray(q, float))
         if len(q) == 0 or len(self.pairs) == 0:
@@ -188,40 +215,75 @@ class CollisionScene:
         near = self._near(poses)
         hit = np.zeros(len(q), bool)
         L, first_static = len(self.links), len(self.shapes) - len(self.static)
-        for T_inv, half, s in self._boxes:  # only where a link's bounding box overlaps that static box
-            rows = np.flatnonzero(~hit & near[:, (a < L) & (b == first_static + s)].any(axis=1))
+        for T_inv, half, s in self._boxes:  # only where a link may touch that static box
+            links = np.zeros((len(q), L), bool)
+            column = np.flatnonzero((a < L) & (b == first_static + s))
+            links[:, a[column]] = near[:, column]
+            rows = np.flatnonzero(~hit & links.any(axis=1))
             if len(rows):
-                hit[rows] = self._inside_box(poses[rows], T_inv, half)
+                hit[rows] = self._inside_box(poses[rows], T_inv, half, links[rows])
         self.fcl_configs += int((near.any(axis=1) & ~hit).sum())
-        # carried-vs-static pairs depend on the flange pose only, shared by all IK branches of a
-        # pose: test them once per distinct flange pose
-        L = len(self.links)
-        flange_only = (a >= L) & (a < L + len(self.carried)) & (b >= len(self.shapes) - len(self.static))
-        rows = np.flatnonzero(~hit & near[:, flange_only].any(axis=1))
-        if len(rows):
-            key = np.round(poses[rows, L, :3, :].reshape(len(rows), -1), 6)
-            _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-            pose_hit = self._test(poses, near, rows[first], np.flatnonzero(flange_only))
-            hit[rows] = pose_hit[inverse.ravel()]
-        self._test(poses, near, np.flatnonzero(~hit & near[:, ~flange_only].any(axis=1)),
-                   np.flatnonzero(~flange_only), out=hit)
+        # carried-vs-static pairs depend on the relative pose only: one fcl test per distinct one,
+        # remembered while the carried body is (the graph search asks every θ of a waypoint: one
+        # nozzle placement)
+        carried_static = (a >= L) & (a < first_static) & (b >= first_static)
+        order = np.argsort(-self._hits, kind="stable")  # the pairs found in contact most often first
+        platform_inverse = None
+        for k in order[carried_static[order]]:
+            rows = np.flatnonzero(near[:, k] & ~hit)
+            if not len(rows):
+                continue
+            if platform_inverse is None:
+                platform_inverse = rigid_inverse(poses[:, L])
+            s = b[k] - first_static
+            T = platform_inverse[rows] @ self.static_poses[s]  # the static body in the platform frame
+            key = T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :]  # a cylinder or cone: its axis and centre
+            key = np.rint(key.reshape(len(rows), -1) * 1e6).astype(np.int64)  # µm, µrad
+            first, group = _distinct(key)
+            known = self._answers[a[k] - L].setdefault(s, {})
+            names = [key[i].tobytes() for i in first]
+            found = np.array([known.get(name, -1) for name in names], np.int8)
+            todo = np.flatnonzero(found < 0)
+            if len(todo):
+                found[todo] = self._test_pair(poses, rows[first[todo]], k)
+                known.update(zip([names[i] for i in todo], found[todo].tolist()))
+            hit[rows] |= found[group] > 0
+        self._test(poses, near, np.flatnonzero(~hit & near[:, ~carried_static].any(axis=1)),
+                   np.flatnonzero(~carried_static), out=hit)
         return hit
 
-    def _inside_box(self, poses: np.ndarray, T_inv: np.ndarray, half: np.ndarray) -> np.ndarray:
+    def _test_pair(self, poses: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
+        """fcl on pair ``k`` (a carried body against a static one) at configurations ``rows``."""
+        pa, pb = self.pairs[k]
+        moving, fixed = self.shapes[pa].obj, self.shapes[pb].obj
+        request = fcl.CollisionRequest()
+        found = np.zeros(len(rows), bool)
+        for r, i in enumerate(rows):
+            _set(moving, poses[i, pa])
+            found[r] = fcl.collide(moving, fixed, request, fcl.CollisionResult())
+        self._hits[k] += found.sum()
+        return found
+
+    def _inside_box(self, poses: np.ndarray, T_inv: np.ndarray, half: np.ndarray,
+                    links: np.ndarray | None = None) -> np.ndarray:
         """(n,) bool: a robot link surely meets the static box (T_inv: base to box frame, half
-        extents): one of its vertices lies inside the box, or a connected piece of its mesh whose
-        bounding sphere stays within the box's footprint has vertices on both sides of the box's
-        slab, so its surface crosses the solid box. Either is a contact fcl reports for that checked
-        pair: a cheap, exact witness for the most common collision (an elbow-down branch through the
-        table)."""
-        M = T_inv @ poses[:, self._probe_link]  # (n, pieces, 4, 4): link pieces in the box frame
-        local = M[..., :3, :3] @ np.swapaxes(self._probe, 1, 2) + M[..., :3, 3:]  # (n, pieces, 3, V)
-        inside = (np.abs(local) < half[:, None] - 1e-6).all(axis=2).any(axis=2)
-        c = (M[..., :3, :3] @ self._sphere[:, :3, None])[..., 0] + M[..., :3, 3]
-        within = (np.abs(c[..., :2]) + self._sphere[:, 3:] < half[:2]).all(axis=-1)
-        z = local[:, :, 2]
-        across = within & (z.min(axis=2) < half[2] - 1e-6) & (z.max(axis=2) > -half[2] + 1e-6)
-        return (inside | across).any(axis=1)
+        extents; ``links`` (n, L) bool: the links to look at, default all): one of its vertices lies
+        inside the box, or a connected piece of its mesh whose bounding sphere stays within the box's
+        footprint has vertices on both sides of the box's slab, so its surface crosses the solid box.
+        Either is a contact fcl reports for that checked pair: a cheap, exact witness for the most
+        common collision (an elbow-down branch through the table)."""
+        links = np.ones((len(poses), len(self.links)), bool) if links is None else links
+        row, piece = np.nonzero(links[:, self._probe_link])
+        M = T_inv @ poses[row, self._probe_link[piece]]  # (m, 4, 4): link pieces in the box frame
+        local = M[:, :3, :3] @ np.swapaxes(self._probe[piece], 1, 2) + M[:, :3, 3:]  # (m, 3, V)
+        inside = (np.abs(local) < half[:, None] - 1e-6).all(axis=1).any(axis=1)
+        c = (M[:, :3, :3] @ self._sphere[piece, :3, None])[..., 0] + M[:, :3, 3]
+        within = (np.abs(c[:, :2]) + self._sphere[piece, 3:] < half[:2]).all(axis=-1)
+        z = local[:, 2]
+        across = within & (z.min(axis=1) < half[2] - 1e-6) & (z.max(axis=1) > -half[2] + 1e-6)
+        out = np.zeros(len(poses), bool)
+        out[row[inside | across]] = True
+        return out
 
     def maybe_colliding(self, q: np.ndarray) -> np.ndarray:
         """(n,) bool: False where the bounding boxes (and ``bounds``) prove every pair apart."""
@@ -238,8 +300,7 @@ class CollisionScene:
         reach = (np.abs(R) @ self.halves[..., None])[..., 0]
         near = (np.abs(centre[:, a] - centre[:, b]) <= reach[:, a] + reach[:, b]).all(axis=-1)
         if self.bounds is not None:
-            some = np.flatnonzero(near.any(axis=0))
-            near[:, some] &= self.bounds.pair_bounds(poses, self.pairs[some]) <= 0
+            near &= ~self.bounds.apart(poses, self.pairs, near)
         return near
 
     def _test(self, poses: np.ndarray, near: np.ndarray, rows: np.ndarray, pairs: np.ndarray,

@@ -22,13 +22,16 @@ from dataclasses import dataclass
 
 import numpy as np
 import trimesh
+from scipy.cluster.vq import kmeans2
 from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
-from curvslice.kinematics import Robot, fk, ik
+from curvslice.kinematics import Robot, fk, ik, rigid_inverse
 from curvslice.workcell import Body, Workcell, flange_poses, waypoints_from_flange
 
 SQRT3_2 = np.sqrt(3.0) / 2
+#: mm of clearance a lower bound must show before a pair counts as apart (fcl's own tolerances are far smaller)
+CLEARANCE = 1e-3
 
 
 def sphere_cover(mesh: trimesh.Trimesh, cell: float) -> tuple[np.ndarray, np.ndarray]:
@@ -48,17 +51,15 @@ def sphere_cover(mesh: trimesh.Trimesh, cell: float) -> tuple[np.ndarray, np.nda
     return centre, radius
 
 
-def axis_spheres(mesh: trimesh.Trimesh, count: int) -> tuple[np.ndarray, np.ndarray]:
-    """``count`` spheres along a body's principal axis (a robot link is long and round) whose union
-    contains every triangle: the triangles (split to edges ≤ half a slab) are split into ``count`` slabs by the projection of their
-    centroid on the axis; a slab's sphere is centred in its vertices' bounding box and reaches its
-    farthest vertex."""
+def cluster_spheres(mesh: trimesh.Trimesh, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """``count`` spheres whose union contains every triangle of a link mesh: the triangles (split to
+    edges ≤ 1/8 of the mesh's size) grouped by k-means of their centroids
+    (``scipy.cluster.vq.kmeans2``); a group's sphere is centred in its vertices' bounding box and
+    reaches its farthest vertex."""
     v = np.asarray(mesh.vertices, float)
-    axis = np.linalg.svd(v - v.mean(axis=0), full_matrices=False)[2][0]
-    v, f = trimesh.remesh.subdivide_to_size(v, np.asarray(mesh.faces), np.ptp(v @ axis) / count / 2)
+    v, f = trimesh.remesh.subdivide_to_size(v, np.asarray(mesh.faces), float(np.ptp(v, axis=0).max()) / 8)
     tri = v[f]
-    t = tri.mean(axis=1) @ axis
-    group = np.minimum(((t - t.min()) / (np.ptp(t) + 1e-12) * count).astype(int), count - 1)
+    _, group = kmeans2(tri.mean(axis=1), count, minit="++", seed=0)
     centre, radius = [], []
     for g in np.unique(group):
         pts = tri[group == g].reshape(-1, 3)
@@ -68,15 +69,11 @@ def axis_spheres(mesh: trimesh.Trimesh, count: int) -> tuple[np.ndarray, np.ndar
     return np.array(centre), np.array(radius)
 
 
-def _body_mesh(body: Body) -> trimesh.Trimesh:
-    if body.kind == "box":
-        return trimesh.creation.box(body.dims)
-    r, h = body.dims
-    if body.kind == "cylinder":
-        return trimesh.creation.cylinder(radius=r, height=h, sections=32)
-    cone = trimesh.creation.cone(radius=r, height=h, sections=32)  # base at z = 0, apex at +h
-    cone.apply_translation([0, 0, -h / 2])  # centred like fcl's cone
-    return cone
+def bounding_sphere(mesh: trimesh.Trimesh) -> tuple[np.ndarray, float]:
+    """A sphere (centre, radius) holding every vertex (so every triangle) of ``mesh``."""
+    v = np.asarray(mesh.vertices, float)
+    c = (v.min(axis=0) + v.max(axis=0)) / 2
+    return c, float(np.linalg.norm(v - c, axis=1).max())
 
 
 def _primitive_distance(body: Body, x: np.ndarray) -> np.ndarray:
@@ -90,6 +87,37 @@ def _primitive_distance(body: Body, x: np.ndarray) -> np.ndarray:
     return np.hypot(radial, axial)
 
 
+def support(body: Body, v: np.ndarray) -> np.ndarray:
+    """Support function max_{x ∈ body} v·x of the solid primitive (body frame, centred like fcl's:
+    a cone's base at z = -h/2, its apex at +h/2) for directions v (..., 3)."""
+    if body.kind == "box":
+        return np.abs(v) @ (np.asarray(body.dims, float) / 2)
+    r, h = body.dims
+    side = r * np.linalg.norm(v[..., :2], axis=-1)
+    if body.kind == "cylinder":
+        return h / 2 * np.abs(v[..., 2]) + side
+    return np.maximum(h / 2 * v[..., 2], -h / 2 * v[..., 2] + side)
+
+
+def solid_cover(body: Body, spacing: float) -> tuple[np.ndarray, np.ndarray]:
+    """Spheres (centres (m, 3), radii (m,), body frame) whose union contains the SOLID primitive (a
+    printed part inside it counts as a contact): a box by a grid of cells (radius: half their
+    diagonal), a cylinder or cone by slabs along its axis (radius: the slab's disc and half its
+    height)."""
+    if body.kind == "box":
+        dims = np.asarray(body.dims, float)
+        counts = np.ceil(dims / spacing).astype(int)
+        step = dims / counts
+        axes = [-d / 2 + (np.arange(k) + 0.5) * s for d, k, s in zip(dims, counts, step)]
+        centre = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+        return centre, np.full(len(centre), np.linalg.norm(step) / 2)
+    r, h = body.dims
+    k = int(np.ceil(h / spacing))
+    z = -h / 2 + (np.arange(k) + 0.5) * h / k
+    reach = np.full(k, r) if body.kind == "cylinder" else r * (h / 2 - (z - h / (2 * k))) / h  # cone: widest at its slab's bottom
+    return np.c_[np.zeros((k, 2)), z], np.hypot(reach, h / (2 * k))
+
+
 @dataclass
 class _DistanceGrid:
     """Lower bound of the unsigned distance to a triangle soup, from an EDT on cells of size h."""
@@ -97,113 +125,204 @@ class _DistanceGrid:
     origin: np.ndarray
     h: float
     edt: np.ndarray  # distance (mm) from each cell centre to the nearest marked cell centre
-    slack: float  # cell half-diagonal + triangle sampling distance
+    slack: float  # how far a surface point can be from its marked cell's centre
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        shape = np.array(self.edt.shape)
-        u = (x - self.origin) / self.h - 0.5  # continuous cell-centre index
-        idx = np.clip(np.rint(u), 0, shape - 1).astype(np.int64)
-        centre = self.origin + (idx + 0.5) * self.h
-        inside = self.edt[idx[..., 0], idx[..., 1], idx[..., 2]] - self.slack - np.linalg.norm(x - centre, axis=-1)
-        lo, hi = self.origin, self.origin + shape * self.h  # every triangle lies inside this box
-        outside = np.linalg.norm(np.maximum(np.maximum(lo - x, x - hi), 0.0), axis=-1)
-        return np.maximum(inside, outside)
+        p = x.reshape(-1, 3)
+        u = (p - self.origin) / self.h  # in cells
+        i = np.clip(np.floor(u), 0, np.array(self.edt.shape) - 1)
+        f = u - i - 0.5  # from the (nearest) cell's centre, in cells
+        flat = np.ravel_multi_index(i.astype(np.intp).T, self.edt.shape)
+        inside = self.edt.ravel()[flat] - self.slack - self.h * np.sqrt(np.einsum("ij,ij->i", f, f))
+        out = np.maximum(np.maximum(self.origin - p, p - self.top), 0.0)  # every triangle lies in the grid's box
+        return np.maximum(inside, np.sqrt(np.einsum("ij,ij->i", out, out))).reshape(x.shape[:-1])
+
+    @property
+    def top(self) -> np.ndarray:
+        return self.origin + np.array(self.edt.shape) * self.h
 
 
 def distance_grid(mesh: trimesh.Trimesh, h: float) -> _DistanceGrid:
-    """The conservative distance field of a mesh's triangles (cell size ``h`` mm)."""
-    v, f = trimesh.remesh.subdivide_to_size(np.asarray(mesh.vertices, float), np.asarray(mesh.faces), h / 2)
+    """The conservative distance field of a mesh's triangles (cell size ``h`` mm): triangles split
+    to edges ≤ h span at most two cells per axis, and every cell their bounding box meets is marked,
+    so each surface point lies in a marked cell (within h·√3/2 of its centre);
+    ``scipy.ndimage.distance_transform_edt`` then gives each cell centre's distance to the marked
+    ones."""
+    v, f = trimesh.remesh.subdivide_to_size(np.asarray(mesh.vertices, float), np.asarray(mesh.faces), h)
+    tri = v[f]
     origin = v.min(axis=0) - 2 * h
     shape = np.ceil((v.max(axis=0) + 2 * h - origin) / h).astype(int) + 1
+    lo = np.floor((tri.min(axis=1) - origin) / h).astype(np.int64)
+    hi = np.floor((tri.max(axis=1) - origin) / h).astype(np.int64)
     marked = np.zeros(shape, bool)
-    idx = np.floor((v - origin) / h).astype(np.int64)
-    marked[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    for offset in np.ndindex(2, 2, 2):
+        idx = np.minimum(lo + offset, hi)
+        marked[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     edt = distance_transform_edt(~marked) * h
-    # every triangle point is within h/2 of a vertex (edges ≤ h/2) and a vertex within SQRT3_2 h of its cell centre
-    return _DistanceGrid(origin, h, edt, SQRT3_2 * h + h / 2)
+    return _DistanceGrid(origin, h, edt, SQRT3_2 * h)
+
+
+@dataclass(frozen=True)
+class CarriedBounds:
+    """What the proxy knows of a carried body (model frame P): the facet planes (n·x ≤ d) and
+    vertices of its convex hull (none for a printed part: its hull is not worth the cost) and its
+    distance field."""
+
+    normals: np.ndarray
+    offsets: np.ndarray
+    vertices: np.ndarray
+    field: _DistanceGrid
+
+
+def carried_bounds(mesh: trimesh.Trimesh, grid: float, hull: bool = False) -> CarriedBounds:
+    """:class:`CarriedBounds` of a mesh: its distance field (cells of ``grid`` mm), and with
+    ``hull`` its convex hull's facets and vertices."""
+    planes, vertices = np.zeros((0, 4)), np.zeros((0, 3))
+    if hull:
+        h = mesh.convex_hull
+        planes = np.c_[h.face_normals, np.einsum("ij,ij->i", h.face_normals, h.triangles[:, 0])]
+        planes = np.unique(np.round(planes, 9), axis=0)  # one plane per facet
+        vertices = np.asarray(h.vertices, float)
+    return CarriedBounds(planes[:, :3], planes[:, 3], vertices, distance_grid(mesh, grid))
+
+
+def _transform(T: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Points x (n, ..., 3) moved by the rigid transforms T (n, 4, 4)."""
+    Rt = np.swapaxes(T[:, :3, :3], 1, 2).reshape((len(T),) + (1,) * (x.ndim - 3) + (3, 3))
+    return x @ Rt + T[:, :3, 3].reshape((len(T),) + (1,) * (x.ndim - 2) + (3,))
 
 
 class SphereBounds:
-    """Per-pair lower bounds on the distance between the bodies of a :class:`CollisionScene`
-    (same body order: links, carried platform [and part], static extruder and obstacle bodies)."""
+    """A conservative, vectorized proof that body pairs of a :class:`~curvslice.collision.CollisionScene`
+    are apart (same body order: links, carried platform and part pieces, static bodies), so the
+    exact check needs fcl only for the others (§4.4's estimator as a prefilter: no false "free").
 
-    def __init__(self, robot: Robot, cell: Workcell, platform: trimesh.Trimesh, link_spheres: int = 8,
-                 static_cell: float = 4.0, platform_cell: float = 20.0, part_cell: float = 6.0, grid: float = 0.8):
-        self.robot = robot
-        self.static_bodies = list(cell.extruder) + list(cell.obstacles)
-        self.link_spheres = [axis_spheres(s.mesh, link_spheres) for s in robot.links]
-        # huge obstacles (a table) would need huge spheres: their exact distance is used instead
-        self.static_spheres = [sphere_cover(_body_mesh(b), max(static_cell, max(b.dims) / 6)) if max(b.dims) <= 200
-                               else None for b in self.static_bodies]
-        hull = platform.convex_hull
-        planes = np.c_[hull.face_normals, np.einsum("ij,ij->i", hull.face_normals, hull.triangles[:, 0])]
-        planes = np.unique(np.round(planes, 9), axis=0)  # one plane per facet
-        self.planes = (planes[:, :3], planes[:, 3])
-        self.carried_spheres = [sphere_cover(hull, platform_cell)]
-        self.carried_distance = [self._hull_distance]
-        self.part_cell, self.grid = part_cell, grid
+    Links are covered by k-means spheres; a link is apart from a static primitive when each sphere
+    is farther from it than its radius (exact primitive distance), from a carried body (platform,
+    part piece) by the body's distance field. Link pairs: sphere against sphere. Carried-static
+    pairs: the platform's hull facets and the static body's own axes as separating axes (support
+    functions); a part piece by slabs covering a static cylinder, in the piece's field."""
 
-    def _hull_distance(self, x: np.ndarray) -> np.ndarray:
-        n, d = self.planes
-        return np.maximum(x @ n.T - d, 0.0).max(axis=-1)
+    def __init__(self, robot: Robot, cell: Workcell, platform: trimesh.Trimesh, spheres: int = 16, slabs: int = 10,
+                 platform_grid: float = 1.0):
+        link = [cluster_spheres(s.mesh, spheres) for s in robot.links]
+        k = max(len(r) for _, r in link)
+        self.centres = np.stack([np.vstack([c, c[-1:].repeat(k - len(c), 0)]) for c, _ in link])  # (L, K, 3)
+        self.radii = np.stack([np.r_[r, r[-1:].repeat(k - len(r))] for _, r in link])  # (L, K)
+        whole = [bounding_sphere(s.mesh) for s in robot.links]
+        self.whole = (np.array([c for c, _ in whole]), np.array([r for _, r in whole]))  # (L, 3), (L,)
+        self.static = list(cell.extruder) + list(cell.obstacles)
+        self.static_poses = np.array([cell.nozzle @ b.pose for b in cell.extruder] + [b.pose for b in cell.obstacles])
+        self.static_inverse = rigid_inverse(self.static_poses.reshape(-1, 4, 4))
+        # Carried-static pairs are tested only where fcl is slow and its answers are not shared (the
+        # scene remembers fcl's answer per relative pose, one per nozzle placement for a cylinder or
+        # cone): the platform against boxes, a part piece against cylinders (slabs along the axis in
+        # the piece's field).
+        self.covers = [solid_cover(b, b.dims[1] / slabs) if b.kind == "cylinder" else None for b in self.static]
+        self.platform = carried_bounds(platform, platform_grid, hull=True)
+        self.pieces = [self.platform]
+        self._groups: dict[bytes, list] = {}
 
-    def set_part(self, mesh: trimesh.Trimesh | None, shapes: int = 1) -> None:
-        """The printed part (model frame P), or ``None``; the scene carries it as ``shapes`` bodies
-        (pieces of it), each bounded here by the whole part (a piece is no nearer than the whole)."""
-        del self.carried_spheres[1:], self.carried_distance[1:]
-        if mesh is not None and len(mesh.faces):
-            self.carried_spheres += [sphere_cover(mesh, self.part_cell)] * shapes
-            self.carried_distance += [distance_grid(mesh, self.grid)] * shapes
+    def set_pieces(self, pieces: list[CarriedBounds]) -> None:
+        """The part pieces the scene carries after the platform."""
+        self.pieces = [self.platform] + list(pieces)
 
-    def pair_bounds(self, poses: np.ndarray, pairs: np.ndarray) -> np.ndarray:
-        """(n, len(pairs)) lower bounds (mm; ≤ 0: maybe touching) for body poses (n, bodies, 4, 4)
-        as built by :meth:`CollisionScene._poses`."""
-        L, C = len(self.link_spheres), len(self.carried_spheres)
-        inv = {}
+    def _group(self, pairs: np.ndarray) -> list[tuple]:
+        """The pair columns by test: (kind, body, columns, links) with kind "static" (links against
+        static body), "carried" (links against carried body), "links" (link pairs), "pair"."""
+        key = pairs.tobytes()
+        if key not in self._groups:
+            L, C = len(self.centres), len(self.pieces)
+            groups = []
+            for kind, other, test in (("static", lambda x, y: (x < L) & (y >= L + C), 1),
+                                      ("carried", lambda x, y: (x >= L) & (x < L + C) & (y < L), 0)):
+                mask = other(pairs[:, 0], pairs[:, 1])
+                for body in np.unique(pairs[mask, test]):
+                    cols = np.flatnonzero(mask & (pairs[:, test] == body))
+                    groups.append((kind, int(body), cols, pairs[cols, 1 - test]))
+            cols = np.flatnonzero((pairs[:, 0] < L) & (pairs[:, 1] < L))
+            groups.append(("links", -1, cols, pairs[cols]))
+            for col in np.flatnonzero((pairs[:, 0] >= L) & (pairs[:, 0] < L + C) & (pairs[:, 1] >= L + C)):
+                s = pairs[col, 1] - L - C
+                if (self.covers[s] is not None) if pairs[col, 0] > L else self.static[s].kind == "box":
+                    groups.append(("pair", col, np.array([col]), pairs[col]))
+            self._groups[key] = groups
+        return self._groups[key]
 
-        def local(body: int, x: np.ndarray) -> np.ndarray:  # world points (n, S, 3) in a body's frame
-            if body not in inv:
-                T = poses[:, body]
-                R = np.swapaxes(T[:, :3, :3], 1, 2)
-                inv[body] = (R, -np.einsum("nij,nj->ni", R, T[:, :3, 3]))
-            R, t = inv[body]
-            return np.einsum("nij,nsj->nsi", R, x) + t[:, None]
+    def apart(self, poses: np.ndarray, pairs: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+        """(n, len(pairs)) bool for body poses (n, bodies, 4, 4) as built by
+        :meth:`CollisionScene._poses`: True where the pair surely does not touch. With ``rows``
+        (n, len(pairs)) bool, only those entries are examined (the others stay False). Each link is
+        first tested by its bounding sphere, then (where that fails) by its cover."""
+        n, L, C = len(poses), len(self.centres), len(self.pieces)
+        rows = np.ones((n, len(pairs)), bool) if rows is None else rows
+        out = np.zeros((n, len(pairs)), bool)
+        R, t = poses[:, :L, :3, :3], poses[:, :L, :3, 3]
+        whole = (R @ self.whole[0][..., None])[..., 0] + t  # (n, L, 3) bounding-sphere centres
+        platform_inverse = rigid_inverse(poses[:, L])
 
-        world = {}
+        def spheres(r: np.ndarray, link: np.ndarray) -> np.ndarray:  # cover centres (m, K, 3) of links at rows
+            return self.centres[link] @ np.swapaxes(R[r, link], 1, 2) + t[r, link][:, None]
 
-        def spheres(body: int) -> tuple[np.ndarray, np.ndarray] | None:
-            if body not in world:
-                cover = (self.link_spheres[body] if body < L else self.carried_spheres[body - L] if body < L + C
-                         else self.static_spheres[body - L - C])
-                if cover is None:
-                    world[body] = None
+        for kind, body, cols, other in self._group(pairs):
+            r = np.flatnonzero(rows[:, cols].any(axis=1))
+            if not len(r):
+                continue
+            if kind == "pair":
+                out[r, cols[0]] = self._carried_static(self.pieces[other[0] - L], other[1] - L - C, platform_inverse[r])
+                continue
+            if kind == "links":
+                a, b = other[:, 0], other[:, 1]
+                clear = np.linalg.norm(whole[r][:, a] - whole[r][:, b], axis=-1) - self.whole[1][a] - self.whole[1][b]
+            else:
+                clear = self._clearance(kind, body, whole[r][:, other], self.whole[1][other], platform_inverse[r])
+            ok = clear > CLEARANCE
+            i, j = np.nonzero(~ok & rows[r][:, cols])  # the bounding sphere is not enough: the cover
+            if len(i):
+                if kind == "links":
+                    xa, xb = spheres(r[i], other[j, 0]), spheres(r[i], other[j, 1])
+                    d = np.linalg.norm(xa[:, :, None] - xb[:, None], axis=-1)
+                    fine = (d - self.radii[other[j, 0]][:, :, None] - self.radii[other[j, 1]][:, None]).min(axis=(1, 2))
                 else:
-                    T = poses[:, body]
-                    world[body] = (np.einsum("nij,sj->nsi", T[:, :3, :3], cover[0]) + T[:, None, :3, 3], cover[1])
-            return world[body]
+                    fine = self._clearance(kind, body, spheres(r[i], other[j]), self.radii[other[j]],
+                                           platform_inverse[r[i]]).min(axis=1)
+                ok[i, j] = fine > CLEARANCE
+            out[np.ix_(r, cols)] = ok
+        return out & rows
 
-        def distance(body: int, x: np.ndarray) -> np.ndarray:  # to a carried or static body
-            if body >= L + C:
-                return _primitive_distance(self.static_bodies[body - L - C], x)
-            return self.carried_distance[body - L](x)
+    def _clearance(self, kind: str, body: int, x: np.ndarray, radius: np.ndarray,
+                   platform_inverse: np.ndarray) -> np.ndarray:
+        """Lower bounds on the gap between spheres (centres x (m, ..., 3) in the base frame, radii
+        broadcast to them) and a static (exact primitive) or carried (field, frame P) body."""
+        L, C = len(self.centres), len(self.pieces)
+        if kind == "static":
+            T = self.static_inverse[body - L - C]
+            return _primitive_distance(self.static[body - L - C], x @ T[:3, :3].T + T[:3, 3]) - radius
+        return self.pieces[body - L].field(_transform(platform_inverse, x)) - radius
 
-        out = np.full((len(poses), len(pairs)), -np.inf)
-        for k, (a, b) in enumerate(pairs):
-            if a < L and b < L:  # link-link: sphere against sphere
-                sa, sb = spheres(a), spheres(b)
-                d = np.linalg.norm(sa[0][:, :, None] - sb[0][:, None], axis=-1) - sa[1][:, None] - sb[1][None]
-                out[:, k] = d.min(axis=(1, 2))
-            elif b >= L + C:  # moving-static: the moving spheres against the static body's distance
-                sa = spheres(a)
-                out[:, k] = (distance(b, local(b, sa[0])) - sa[1]).min(axis=1)
-                sb = spheres(b)
-                if a >= L and sb is not None:  # carried-static: also the static spheres against the carried field
-                    out[:, k] = np.maximum(out[:, k], (distance(a, local(a, sb[0])) - sb[1]).min(axis=1))
-            else:  # carried-link: the link spheres against the carried body's distance
-                link, carried = (a, b) if a < L else (b, a)
-                s = spheres(link)
-                out[:, k] = (distance(carried, local(carried, s[0])) - s[1]).min(axis=1)
-        return out
+    def _carried_static(self, piece: CarriedBounds, s: int, platform_inverse: np.ndarray) -> np.ndarray:
+        body = self.static[s]
+        T = platform_inverse @ self.static_poses[s]  # the static body in frame P
+        R, t = T[:, :3, :3], T[:, :3, 3]
+        apart = np.zeros(len(T), bool)
+        if len(piece.normals):
+            # separating axes: the hull's facet normals (min over the body of n·x beyond the facet's d)
+            lowest = t @ piece.normals.T - support(body, -(piece.normals @ R))
+            apart = (lowest > piece.offsets + CLEARANCE).any(axis=1)
+            # and the body's own axes (box faces; the axis of a cylinder or cone) against the hull vertices
+            for j in range(3 if body.kind == "box" else 2, 3):
+                axis = R[:, :, j]
+                e = np.eye(3)[j]
+                proj = axis @ piece.vertices.T
+                centre = (axis * t).sum(axis=1)
+                apart |= (proj.min(axis=1) > centre + support(body, e) + CLEARANCE)
+                apart |= (proj.max(axis=1) < centre - support(body, -e) - CLEARANCE)
+        cover = self.covers[s]
+        if cover is not None:
+            r = np.flatnonzero(~apart)
+            x = _transform(T[r], cover[0][None])
+            apart[r] = (piece.field(x) - cover[1]).min(axis=1) > CLEARANCE
+        return apart
 
 
 THETA_SAMPLES = 72  # θ of a random contact sample is drawn from this many (5°) steps of Eq. 4.3
