@@ -374,18 +374,36 @@ def deviate_axes(
     deviation = np.zeros(len(axes))
     angles = np.arange(1, int(np.floor(cell.max_axis_deviation / cell.axis_deviation_step + 1e-9)) + 1) \
         * cell.axis_deviation_step
-    for j in np.flatnonzero(stuck):
-        for angle in angles:
-            found = None
-            for cand in tilted_axes(axes[j], angle):
-                if cand[2] <= -1 + 1e-9:
-                    continue
-                q, ok = ladder(robot, cell, positions[j][None], cand[None], p)
-                nodes = q[0, ok[0]]
-                if len(nodes) and (collides is None or not collides(nodes).all()):
-                    found = cand
-                    break
-            if found is not None:
-                axes[j], deviation[j] = found / np.linalg.norm(found), angle
-                break
+    left = np.flatnonzero(stuck)  # every stuck waypoint takes the first tilt that helps it, in the order
+    for angle in angles:          # above; all of them are tried at once per tilt
+        cands = np.stack([tilted_axes(axes[j], angle) for j in left], axis=1) if len(left) else []
+        done = np.zeros(len(left), bool)
+        for cand in cands:  # (n, 3) per azimuth
+            rows = np.flatnonzero(~done & (cand[:, 2] > -1 + 1e-9))
+            if len(rows) == 0:
+                continue
+            q, ok = ladder(robot, cell, positions[left[rows]], cand[rows], p)
+            rows = rows[ok.any(axis=1) if collides is None else _any_free(q, ok, collides)]
+            axes[left[rows]] = cand[rows] / np.linalg.norm(cand[rows], axis=1, keepdims=True)
+            deviation[left[rows]] = angle
+            done[rows] = True
+        left = left[~done]
     return axes, deviation
+
+
+def _any_free(q: np.ndarray, ok: np.ndarray, collides: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """(n,) whether some node of each rung (q (n, K, 6), ok (n, K)) is collision-free: nodes asked
+    in batches over all rungs that doubling in size, a rung leaving once a free node is found."""
+    n = len(q)
+    free = np.zeros(n, bool)
+    order = [np.flatnonzero(row) for row in ok]
+    start, size = 0, 8
+    while True:
+        rr = [(r, order[r][start:start + size]) for r in range(n) if not free[r] and start < len(order[r])]
+        if not rr:
+            return free
+        rungs = np.concatenate([np.full(len(k), r) for r, k in rr])
+        nodes = np.concatenate([k for _, k in rr])
+        clear = ~collides(q[rungs, nodes])
+        free[rungs[clear]] = True
+        start, size = start + size, 2 * size

@@ -215,8 +215,8 @@ def _search(
 
 #: waypoints per coarse rung inside a tool-path in the coarse-to-fine search (:func:`plan_motion`)
 COARSE_STEP = 8
-#: times a full-search stretch that breaks is searched again with its ends further out, and by how
-#: many kept rungs each time (its pinned nodes may be what breaks it)
+#: times at most a full-search stretch that splits is searched again with its ends further out (while
+#: that removes splits), and by how many kept rungs each time (its pinned nodes may cause the split)
 WIDEN, WIDEN_STEP = 3, 2
 
 
@@ -338,9 +338,9 @@ def _coarse_to_fine(
         done = adjacent.copy()
         done[fill[filled]] = True
         stretches += [(int(x), int(y), True, True) for x, y in zip(a[~done], b[~done])]
-    for x, y, pin_a, pin_b in stretches:
+    for x, y, pin_a, pin_b in sorted(stretches):
         best = None
-        for widen in range(WIDEN + 1):  # a stretch that breaks: again with ends WIDEN_STEP kept rungs further out
+        for widen in range(WIDEN + 1):  # a stretch that splits: again with ends WIDEN_STEP kept rungs further out
             if widen:
                 i, j = np.searchsorted(idx, x) - WIDEN_STEP, np.searchsorted(idx, y) + WIDEN_STEP
                 x, y = int(idx[max(i, 0)]), int(idx[min(j, len(idx) - 1)])
@@ -348,14 +348,17 @@ def _coarse_to_fine(
             ends = tuple(chosen[r] if pin and not np.isnan(chosen[r, 0]) else None for r, pin in ((x, pin_a), (y, pin_b)))
             found = search(slice(x, y + 1), dt[x:y], ends)
             checks += found.checks
-            rows = np.flatnonzero(found.node >= 0)
-            breaks = len(found.node) - len(rows) + int((np.diff(found.segment[rows]) != 0).sum())
-            if best is None or breaks < best[0]:
-                best = (breaks, x, y, ends, found)
-            if breaks == 0 or (x == 0 and y == m - 1):
-                break
+            seg = found.segment
+            splits = int(((seg[1:] != seg[:-1]) & (seg[1:] >= 0) & (seg[:-1] >= 0)).sum())
+            if best is not None and splits >= best[0]:
+                break  # wider did not help: the split is the ladder's own
+            best = (splits, x, y, ends, found)
+            if splits == 0 or (seg < 0).any() or (x == 0 and y == m - 1):
+                break  # (skipped rungs: the axis deviation's part, not the pins')
         _, x, y, ends, found = best
         a0, b0 = int(ends[0] is not None), int(ends[1] is not None)
+        link[x] &= bool(a0)  # a free end starts a motion of its own
+        link[min(y + 1, m - 1)] &= bool(b0) or y == m - 1
         inner = slice(x + a0, y + 1 - b0)
         chosen[inner] = found.q[a0:len(found.q) - b0]
         solutions[inner] = found.solutions[a0:len(found.q) - b0]
@@ -456,6 +459,29 @@ def segment_speeds(path_id: np.ndarray, feed: np.ndarray, cell: Workcell) -> np.
     return np.where(same, np.where(feed_s > 0, feed_s, cell.linear_speed), cell.travel_speed)
 
 
+class Remembered:
+    """A collision predicate that answers a configuration it was asked before from memory (bitwise
+    equal joints: the same IK node met again, e.g. when a layer is planned again after an axis
+    deviation or a stretch is searched again); ``asked`` counts the configurations really checked."""
+
+    def __init__(self, collides: Callable[[np.ndarray], np.ndarray]):
+        self.collides, self.known, self.asked = collides, {}, 0
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        q = np.ascontiguousarray(q, float)
+        keys = [row.tobytes() for row in q]
+        out = np.array([self.known.get(k, 2) for k in keys], np.int8).reshape(len(q))
+        new = np.flatnonzero(out == 2)
+        if len(new):
+            first = {keys[i]: i for i in new[::-1]}  # repeats inside one call: check once
+            todo = np.array(sorted(first.values()))
+            hit = self.collides(q[todo])
+            self.known.update(zip((keys[i] for i in todo), hit.tolist()))
+            self.asked += len(todo)
+            out[new] = [self.known[keys[i]] for i in new]
+        return out.astype(bool)
+
+
 def plan_layer(
     robot: Robot,
     cell: Workcell,
@@ -483,17 +509,16 @@ def plan_layer(
     speed = segment_speeds(path_id, np.asarray(toolpaths["feed"], float)[rows], cell)
     keep = coarse_rungs(path_id, coarse_step) if coarse_step > 1 else None
     axes, deviation, tried = planned, np.zeros(len(rows)), np.zeros(len(rows), bool)
-    checks = 0
+    collides = None if collides is None else Remembered(collides)
     while True:
         dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed) \
             if len(rows) > 1 else np.zeros(0)
         near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
         motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near, keep)
-        checks += motion.collision_checks
         stuck = (motion.segment < 0) & ~tried
         if not stuck.any() or cell.max_axis_deviation <= 0:
             break
-        axes, more = deviate_axes(robot, cell, positions, axes, stuck, collides, motion.rotations)
+        axes, more = deviate_axes(robot, cell, positions, axes, stuck, collides, start_rotations(cell.rotations))
         tried |= stuck
         if not (more > 0).any():
             break
@@ -515,7 +540,7 @@ def plan_layer(
         "skipped": int((~done).sum()),
         "deviated": int((deviation[done] > 0).sum()),
         "max_deviation_deg": round(float(np.degrees(deviation[done].max())), 3) if done.any() else 0.0,
-        "collision_checks": checks,  # over every planning pass of the layer
+        "collision_checks": collides.asked if collides is not None else 0,  # distinct poses, every pass
         "seconds": round(time.perf_counter() - start, 3),
     }
     return PrintMotion(
