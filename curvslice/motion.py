@@ -287,7 +287,8 @@ def plan_motion(
     for w in winding:
         segment[w:][segment[w:] >= 0] += 1
     times = _timestamps(qa, segment, dt, cell.max_joint_speed)
-    total = float(joint_steps(chosen[:-1], chosen[1:], circ, cost, weights)[0][link[1:]].sum()) if m > 1 else 0.0
+    inside = (segment[1:] == segment[:-1]) & (segment[1:] >= 0)  # Eq. 3.4 (4.6) inside the final motions
+    total = float(joint_steps(chosen[:-1], chosen[1:], circ, cost, weights)[0][inside].sum()) if m > 1 else 0.0
     return Motion(qa, times, segment, p, solutions, splits, winding, total, checks)
 
 
