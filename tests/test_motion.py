@@ -331,7 +331,7 @@ def test_coarse_to_fine_matches_the_full_search_on_a_dome_spiral(ur5):
 
 def test_coarse_to_fine_falls_back_to_the_full_search_where_filling_fails(ur5):
     """The axis flip of test_split_when_the_axis_flips_faster_than_xi inside a coarse gap, and a
-    forbidden θ band that the interpolated rows cross: same split as the full search, no forbidden row."""
+    waypoint inside a gap without a collision-free pose: same splits and skips as the full search."""
     robot, cell = ur5
     c, t = _dome_spiral(60, turns=0.0, tilt_deg=40.0)
     t[30:, :2] *= -1
@@ -342,13 +342,15 @@ def test_coarse_to_fine_falls_back_to_the_full_search_where_filling_fails(ur5):
     fast = plan_motion(robot, small, c, t, dt, max_rotations=8, keep=keep)
     assert fast.splits == full.splits == [30]
 
-    def collides(q):  # the rows 10..20 may not have the deposition frame's x pointing to +Y
-        T_NP = np.linalg.inv(fk(robot, q) @ small.platform_mount) @ small.nozzle
-        return T_NP[:, 1, 0] > 0.5
+    def collides(q):  # every pose of waypoint 13 (between kept rungs 8 and 16) collides
+        pos, _ = waypoints_from_flange(small, fk(robot, q))
+        return np.linalg.norm(pos - c[13], axis=1) < 1e-6
 
+    full = plan_motion(robot, small, c[:30], t[:30], dt[:29], collides=collides, max_rotations=8)
     fast = plan_motion(robot, small, c[:30], t[:30], dt[:29], collides=collides, max_rotations=8, keep=keep[:30])
-    assert (fast.segment >= 0).all()
-    assert not collides(fast.q).any()
+    np.testing.assert_array_equal(fast.segment, full.segment)  # skipped at 13, a new motion after it
+    assert fast.segment[13] == -1 and fast.splits == full.splits == [14]
+    assert not collides(fast.q[fast.segment >= 0]).any()
 
 
 def test_batched_axis_deviation_equals_one_waypoint_at_a_time(ur5):
