@@ -6,7 +6,8 @@ ladder is built from a spiral on a dome (tilts up to 60°) in the shipped UR5 wo
 rotations and every IK solution, then searched rung by rung; with --collisions the whole layer
 planner runs instead (:func:`curvslice.motion.plan_motion`: p from 15, doubled per rung where the
 motion breaks, lazy exact collision checks; --coarse 8: the coarse-to-fine search on every 8th rung,
-as plan_layer). --estimators times fcl, the sphere proxy and the learned SVM (§4.4) on that ladder's nodes (accuracy: ``benchmarks/bench_collision.py``).
+as plan_layer). --estimators times fcl, the sphere proxy and the learned SVM (§4.4) on that ladder's
+nodes (accuracy: ``benchmarks/bench_collision.py``).
 Run: ``python benchmarks/bench_motion.py [--collisions] [--estimators] [--counts 500 2545]``.
 """
 
