@@ -310,7 +310,7 @@ def _coarse_to_fine(
     keep[[0, -1]] = True
     elapsed = np.r_[0.0, np.cumsum(dt)]
     idx = np.flatnonzero(keep)
-    coarse = search(idx, np.diff(elapsed[idx]))
+    coarse = search(idx, np.add.reduceat(dt, idx[:-1]))  # Δt summed between kept rungs (one step: the same Δt)
     chosen = np.full((m, 6), np.nan)
     chosen[idx] = coarse.q
     link = np.zeros(m, bool)
