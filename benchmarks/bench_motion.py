@@ -5,8 +5,9 @@ The thesis's reference (Table 4.2, WS1): 2,545 waypoints, graph initialization 8
 ladder is built from a spiral on a dome (tilts up to 60°) in the shipped UR5 workcell with p = 30
 rotations and every IK solution, then searched rung by rung; with --collisions the whole layer
 planner runs instead (:func:`curvslice.motion.plan_motion`: p from 15, doubled per rung where the
-motion breaks, lazy exact collision checks). --estimators times fcl, the sphere proxy and the
-learned SVM (§4.4) on that ladder's nodes (accuracy: ``benchmarks/bench_collision.py``).
+motion breaks, lazy exact collision checks; --coarse 8: the coarse-to-fine search on every 8th rung,
+as plan_layer). --estimators times fcl, the sphere proxy and the learned SVM (§4.4) on that ladder's
+nodes (accuracy: ``benchmarks/bench_collision.py``).
 Run: ``python benchmarks/bench_motion.py [--collisions] [--estimators] [--counts 500 2545]``.
 """
 
@@ -21,7 +22,7 @@ from curvslice.collision import CollisionScene
 from curvslice.collision_estimate import LearnedCollision
 from curvslice.kinematics import ROBOT_NAMES, fk_reference, ik, load_robot
 from curvslice.ladder import circular_joints, ladder, shortest_path
-from curvslice.motion import plan_motion, step_times
+from curvslice.motion import COARSE_STEP, coarse_rungs, plan_motion, step_times
 from curvslice.workcell import load_workcell
 
 THESIS_INIT_S = 86.0
@@ -46,7 +47,7 @@ def ik_throughput(n: int = 20_000) -> None:
         print(f"IK {name:7s} {n / dt:10,.0f} poses/s  {ok.sum() / dt:12,.0f} solutions/s  ({ok.sum(1).mean():.2f} per pose)")
 
 
-def graph_times(counts: list[int], collisions: bool) -> None:
+def graph_times(counts: list[int], collisions: bool, coarse: int = 1) -> None:
     robot, cell = load_robot("ur5"), load_workcell("ur5")
     lo, hi = cell.limits(robot)
     circ = circular_joints(lo, hi)
@@ -62,10 +63,11 @@ def graph_times(counts: list[int], collisions: bool) -> None:
             total = time.perf_counter() - start
             extra = f"segments {path.segment.max() + 1}"
         else:
-            motion = plan_motion(robot, cell, c, t, dt, collides=scene.collisions)
+            keep = coarse_rungs(np.zeros(m), coarse) if coarse > 1 else None
+            motion = plan_motion(robot, cell, c, t, dt, collides=scene.collisions, keep=keep)
             total = time.perf_counter() - start - built  # plan_motion builds its own ladder
             extra = (f"segments {motion.segment.max() + 1}, p {motion.rotations}, collision checks "
-                     f"{motion.collision_checks:,} of {int(motion.solutions.sum()):,} nodes")
+                     f"{motion.collision_checks:,}, path cost {motion.cost:.2f}")
         nodes = int(valid.sum())
         print(f"graph m={m:6d}  nodes {nodes:9,d}  build {built:6.2f} s  build+search {total:6.2f} s  "
               f"thesis/ours {THESIS_INIT_S * m / 2545 / total:5.1f}x  {extra}")
@@ -102,9 +104,11 @@ def main() -> None:
     parser.add_argument("--counts", type=int, nargs="+", default=[500, 1000, 2545, 5000])
     parser.add_argument("--collisions", action="store_true", help="plan with lazy exact collision checks")
     parser.add_argument("--estimators", action="store_true", help="time the collision estimators")
+    parser.add_argument("--coarse", type=int, default=1, help=f"with --collisions: coarse-to-fine search on every "
+                        f"n-th rung (plan_layer's default: {COARSE_STEP}; 1 = the full ladder)")
     args = parser.parse_args()
     ik_throughput()
-    graph_times(args.counts, args.collisions)
+    graph_times(args.counts, args.collisions, args.coarse)
     if args.estimators:
         estimator_times()
 

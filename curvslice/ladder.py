@@ -22,8 +22,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
-from curvslice.kinematics import Robot, ik
-from curvslice.workcell import Workcell, flange_poses
+from curvslice.kinematics import Robot, ik, rigid_inverse
+from curvslice.workcell import Workcell, deposition_frames, flange_poses
 
 TWO_PI = 2 * np.pi
 
@@ -57,6 +57,14 @@ def edge_weights(
     total, largest = _joint_costs(lambda j: qb[None, :, j] - qa[:, None, j], circular, cost, weights)
     total[~(largest <= max_speed * dt)] = np.inf  # NaN nodes compare False -> excluded
     return total
+
+
+def joint_steps(
+    qa: np.ndarray, qb: np.ndarray, circular: np.ndarray, cost: str = "l1", weights: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Row by row from ``qa`` (n, 6) to ``qb`` (n, 6): the edge cost (Eq. 3.4 or 4.5, as
+    :func:`edge_weights`) and ‖Δq‖∞, circular joints the short way round."""
+    return _joint_costs(lambda j: qb[:, j] - qa[:, j], circular, cost, weights)
 
 
 def _joint_costs(
@@ -301,14 +309,34 @@ def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndar
     representative inside their limits (none: the node is dropped).
     """
     m = len(positions)
-    T = flange_poses(cell, positions, normals, p).reshape(-1, 4, 4)
+    q, ok = _limited_ik(robot, cell, flange_poses(cell, positions, normals, p).reshape(-1, 4, 4))
+    return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
+
+
+def ladder_at(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray,
+              branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One node per waypoint: IK branch ``branch`` (n,) at its own rotation ``thetas`` (n,) rad about
+    the nozzle axis (Eq. 4.3, the θ convention of :func:`ladder`); q (n, 6) and whether it exists
+    inside the limits (n,), represented as in :func:`ladder`."""
+    T = deposition_frames(positions, normals, np.zeros(1))[:, 0]
+    c, s = np.cos(thetas), np.sin(thetas)
+    Rz = np.zeros((len(T), 3, 3))
+    Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
+    T[:, :3, :3] = T[:, :3, :3] @ Rz
+    q, ok = _limited_ik(robot, cell, cell.nozzle @ rigid_inverse(T) @ rigid_inverse(cell.platform_mount))
+    k = np.arange(len(T))
+    return q[k, branch], ok[k, branch]
+
+
+def _limited_ik(robot: Robot, cell: Workcell, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """IK of flange poses (n, 4, 4): (n, 8, 6) and (n, 8) valid inside the joint limits; joints with
+    more than one revolution of range keep angles in [-π, π), the others take the representative
+    inside their limits (none: invalid)."""
     q, ok = ik(robot, T)
     lo, hi = cell.limits(robot)
-    circ = circular_joints(lo, hi)
-    rep = lo + (q - lo) % TWO_PI
-    q = np.where(circ, q, rep)
+    q = np.where(circular_joints(lo, hi), q, lo + (q - lo) % TWO_PI)
     ok &= ((q >= lo - 1e-12) & (q <= hi + 1e-12)).all(axis=-1)
-    return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
+    return q, ok
 
 
 def tilted_axes(axis: np.ndarray, angle: float, azimuths: int = 8) -> np.ndarray:
@@ -346,18 +374,36 @@ def deviate_axes(
     deviation = np.zeros(len(axes))
     angles = np.arange(1, int(np.floor(cell.max_axis_deviation / cell.axis_deviation_step + 1e-9)) + 1) \
         * cell.axis_deviation_step
-    for j in np.flatnonzero(stuck):
-        for angle in angles:
-            found = None
-            for cand in tilted_axes(axes[j], angle):
-                if cand[2] <= -1 + 1e-9:
-                    continue
-                q, ok = ladder(robot, cell, positions[j][None], cand[None], p)
-                nodes = q[0, ok[0]]
-                if len(nodes) and (collides is None or not collides(nodes).all()):
-                    found = cand
-                    break
-            if found is not None:
-                axes[j], deviation[j] = found / np.linalg.norm(found), angle
-                break
+    left = np.flatnonzero(stuck)  # every stuck waypoint takes the first tilt that helps it, in the order
+    for angle in angles:          # above; all of them are tried at once per tilt
+        cands = np.stack([tilted_axes(axes[j], angle) for j in left], axis=1) if len(left) else []
+        done = np.zeros(len(left), bool)
+        for cand in cands:  # (n, 3) per azimuth
+            rows = np.flatnonzero(~done & (cand[:, 2] > -1 + 1e-9))
+            if len(rows) == 0:
+                continue
+            q, ok = ladder(robot, cell, positions[left[rows]], cand[rows], p)
+            rows = rows[ok.any(axis=1) if collides is None else _any_free(q, ok, collides)]
+            axes[left[rows]] = cand[rows] / np.linalg.norm(cand[rows], axis=1, keepdims=True)
+            deviation[left[rows]] = angle
+            done[rows] = True
+        left = left[~done]
     return axes, deviation
+
+
+def _any_free(q: np.ndarray, ok: np.ndarray, collides: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+    """(n,) whether some node of each rung (q (n, K, 6), ok (n, K)) is collision-free: nodes asked
+    in batches over all rungs that doubling in size, a rung leaving once a free node is found."""
+    n = len(q)
+    free = np.zeros(n, bool)
+    order = [np.flatnonzero(row) for row in ok]
+    start, size = 0, 8
+    while True:
+        rr = [(r, order[r][start:start + size]) for r in range(n) if not free[r] and start < len(order[r])]
+        if not rr:
+            return free
+        rungs = np.concatenate([np.full(len(k), r) for r, k in rr])
+        nodes = np.concatenate([k for _, k in rr])
+        clear = ~collides(q[rungs, nodes])
+        free[rungs[clear]] = True
+        start, size = start + size, 2 * size

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from curvslice.kinematics import Robot
-from curvslice.ladder import TWO_PI, circular_joints, deviate_axes, ladder, shortest_path
+from curvslice.ladder import TWO_PI, circular_joints, deviate_axes, joint_steps, ladder, ladder_at, shortest_path
 from curvslice.workcell import Workcell
 
 
@@ -27,7 +27,7 @@ class Motion:
     t: np.ndarray  # (m,) s from the first waypoint; NaN for skipped waypoints
     segment: np.ndarray  # (m,) int, a new value starts a new smooth motion; -1 if skipped
     rotations: int  # p finally used
-    solutions: np.ndarray  # (m,) int, IK solutions per waypoint within the joint limits
+    solutions: np.ndarray  # (m,) int, IK solutions per waypoint within the joint limits (-1: not laddered)
     splits: list[int]  # waypoint indices where the graph disconnects (new motion, Fig. 3.11b)
     winding_splits: list[int]  # waypoint indices where a joint would leave its range by winding
     cost: float  # Eq. 3.4 (or 4.6) summed over the segments
@@ -101,30 +101,37 @@ def start_rotations(rotations: int) -> int:
     return p
 
 
-def plan_motion(
+@dataclass
+class _Found:
+    """One ladder search (:func:`_search`): per rung the chosen node (-1: none), its motion id, its
+    joints (NaN: none), rotation θ and IK branch; p used, IK solutions per rung, nodes checked."""
+
+    node: np.ndarray
+    segment: np.ndarray
+    q: np.ndarray
+    theta: np.ndarray
+    branch: np.ndarray
+    rotations: int
+    solutions: np.ndarray
+    checks: int
+
+
+def _search(
     robot: Robot,
     cell: Workcell,
     positions: np.ndarray,
     normals: np.ndarray,
     dt: np.ndarray,
-    collides: Callable[[np.ndarray], np.ndarray] | None = None,
-    cost: str = "l1",
-    weights: np.ndarray | None = None,
-    max_rotations: int | None = None,
-    dense: np.ndarray | None = None,
-) -> Motion:
-    """Joint trajectory for one waypoint sequence (a layer's tool-paths, in print order).
-
-    ``dt`` (m-1,) are the step times; ``collides(q) -> bool`` marks poses in collision. Every rung
-    starts with p = :func:`start_rotations` of ``cell.rotations``; while the motion has breaks (splits
-    or skipped waypoints) p is doubled, up to ``max_rotations`` (default 4 × ``cell.rotations``), on
-    the rungs of the breaks only (a skipped rung, and the ``REFINE_WINDOW`` rungs up to a split) and
-    the search repeated while that removes breaks (§4.3.1); the ladder with the fewest breaks is kept.
-    θ samples nest (those of p are every other one of 2p), so collision answers carry over. Rungs
-    marked ``dense`` (m,) bool are refined with every break (e.g. those around a deviated tool axis).
-    """
-    positions = np.asarray(positions, float)
-    normals = np.asarray(normals, float)
+    collides: Callable[[np.ndarray], np.ndarray] | None,
+    cost: str,
+    weights: np.ndarray | None,
+    max_rotations: int | None,
+    dense: np.ndarray | None,
+    ends: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+) -> _Found:
+    """The ladder search of :func:`plan_motion` on every rung (p doubling on the breaks' rungs,
+    lazy collision checks). ``ends``: joints the first / last rung is pinned to (a single node,
+    known collision-free), e.g. where a stretch meets an already planned path."""
     m = len(positions)
     lo, hi = cell.limits(robot)
     circ = circular_joints(lo, hi)
@@ -134,11 +141,20 @@ def plan_motion(
     q, solved = ladder(robot, cell, positions, normals, p)
     solved_at = np.full(m, p)  # p of the IK solutions held for each rung
     known = np.zeros((m, 8 * p), np.int8)  # collision answers: 0 unknown, 1 free, -1 colliding
+    fixed = np.zeros(m, bool)
+    for row, pin in zip((0, m - 1), ends):
+        if pin is not None:  # node 0 (θ sample 0, branch 0) stays node 0 when p doubles
+            fixed[row] = True
+            q[row] = np.nan
+            q[row, 0] = pin
+            solved[row] = False
+            solved[row, 0] = True
+            known[row, 0] = 1
     asked_total = 0
     best, whole = None, False
     edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # rung i -> its edges to rung i+1
     while True:
-        redo = np.flatnonzero(solved_at < level)  # refined rungs: IK at the finer θ samples
+        redo = np.flatnonzero((solved_at < level) & ~fixed)  # refined rungs: IK at the finer θ samples
         if len(redo):
             q[redo], solved[redo] = ladder(robot, cell, positions[redo], normals[redo], p)
             solved_at[redo] = p
@@ -190,18 +206,219 @@ def plan_motion(
         edges = {i: (2 * ia - ia % 8, 2 * ib - ib % 8, w) for i, (ia, ib, w) in edges.items()
                  if not (refine[i] or refine[i + 1])}
     _, p, q, valid, path = best
-    solutions = valid.sum(axis=1)
-    starts = np.flatnonzero(np.r_[False, np.diff(path.segment[path.segment >= 0]) != 0])
     rows = np.flatnonzero(path.node >= 0)
-    chosen = np.full((len(positions), 6), np.nan)
+    chosen = np.full((m, 6), np.nan)
     chosen[rows] = q[rows, path.node[rows]]
-    qa, winding = unwind(chosen, path.segment, lo, hi)
-    splits = [int(rows[s]) for s in starts]
-    segment = path.segment.copy()
+    theta = -np.pi + TWO_PI * (path.node // 8) / (q.shape[1] // 8)  # rotation_samples of the held p
+    return _Found(path.node, path.segment, chosen, theta, path.node % 8, p, valid.sum(axis=1), asked_total)
+
+
+#: waypoints per coarse rung inside a tool-path in the coarse-to-fine search (:func:`plan_motion`)
+COARSE_STEP = 8
+#: times at most a full-search stretch that splits is searched again with its ends further out (while
+#: that removes splits), and by how many kept rungs each time (its pinned nodes may cause the split)
+WIDEN, WIDEN_STEP = 3, 2
+
+
+def coarse_rungs(path_id: np.ndarray, step: int = COARSE_STEP) -> np.ndarray:
+    """(m,) bool: the rungs of the coarse ladder: the first and last waypoint of every tool-path
+    (jumps between paths stay single graph edges) and every ``step``-th waypoint inside a path."""
+    path_id = np.asarray(path_id)
+    m = len(path_id)
+    first = np.r_[True, path_id[1:] != path_id[:-1]] if m else np.zeros(0, bool)
+    last = np.r_[first[1:], True] if m else first
+    begin = np.maximum.accumulate(np.where(first, np.arange(m), 0)) if m else np.zeros(0, int)
+    return first | last | ((np.arange(m) - begin) % max(int(step), 1) == 0)
+
+
+def plan_motion(
+    robot: Robot,
+    cell: Workcell,
+    positions: np.ndarray,
+    normals: np.ndarray,
+    dt: np.ndarray,
+    collides: Callable[[np.ndarray], np.ndarray] | None = None,
+    cost: str = "l1",
+    weights: np.ndarray | None = None,
+    max_rotations: int | None = None,
+    dense: np.ndarray | None = None,
+    keep: np.ndarray | None = None,
+) -> Motion:
+    """Joint trajectory for one waypoint sequence (a layer's tool-paths, in print order).
+
+    ``dt`` (m-1,) are the step times; ``collides(q) -> bool`` marks poses in collision. Every rung
+    starts with p = :func:`start_rotations` of ``cell.rotations``; while the motion has breaks (splits
+    or skipped waypoints) p is doubled, up to ``max_rotations`` (default 4 × ``cell.rotations``), on
+    the rungs of the breaks only (a skipped rung, and the ``REFINE_WINDOW`` rungs up to a split) and
+    the search repeated while that removes breaks (§4.3.1); the ladder with the fewest breaks is kept.
+    θ samples nest (those of p are every other one of 2p), so collision answers carry over. Rungs
+    marked ``dense`` (m,) bool are refined with every break (e.g. those around a deviated tool axis).
+
+    ``keep`` (m,) bool (e.g. :func:`coarse_rungs`): coarse-to-fine. The ladder search runs on the kept
+    rungs (edges Eq. 4.4 over the summed Δt); between two kept rungs of one motion on one IK branch
+    the waypoints take that branch at θ interpolated in time (one IK each), checked for ξ (Eq. 4.4)
+    and collisions; a stretch where that fails (or the coarse path breaks) gets the full ladder search
+    between its two kept nodes. ``None``: the full ladder on every rung.
+    """
+    positions = np.asarray(positions, float)
+    normals = np.asarray(normals, float)
+    m = len(positions)
+    lo, hi = cell.limits(robot)
+    circ = circular_joints(lo, hi)
+
+    def search(r: slice | np.ndarray, step: np.ndarray, ends=(None, None)) -> _Found:
+        return _search(robot, cell, positions[r], normals[r], step, collides, cost, weights, max_rotations,
+                       None if dense is None else dense[r], ends)
+
+    if keep is None or m < 3 or np.all(keep):
+        found = search(slice(None), np.asarray(dt))
+        chosen, solutions, p, checks = found.q, found.solutions, found.rotations, found.checks
+        link = np.r_[False, (found.segment[1:] == found.segment[:-1]) & (found.segment[1:] >= 0)]
+    else:
+        chosen, link, solutions, p, checks = _coarse_to_fine(robot, cell, positions, normals, np.asarray(dt),
+                                                             np.asarray(keep, bool), collides, circ, search)
+    present = ~np.isnan(chosen[:, 0])
+    link &= present & np.r_[False, present[:-1]]
+    starts = present & ~link
+    segment = np.where(present, np.cumsum(starts) - 1, -1)
+    rows = np.flatnonzero(present)
+    splits = [int(r) for r in rows[1:] if starts[r]]
+    qa, winding = unwind(chosen, segment, lo, hi)
     for w in winding:
         segment[w:][segment[w:] >= 0] += 1
     times = _timestamps(qa, segment, dt, cell.max_joint_speed)
-    return Motion(qa, times, segment, p, solutions, splits, winding, path.cost, asked_total)
+    inside = (segment[1:] == segment[:-1]) & (segment[1:] >= 0)  # Eq. 3.4 (4.6) inside the final motions
+    total = float(joint_steps(chosen[:-1], chosen[1:], circ, cost, weights)[0][inside].sum()) if m > 1 else 0.0
+    return Motion(qa, times, segment, p, solutions, splits, winding, total, checks)
+
+
+def _coarse_to_fine(
+    robot: Robot,
+    cell: Workcell,
+    positions: np.ndarray,
+    normals: np.ndarray,
+    dt: np.ndarray,
+    keep: np.ndarray,
+    collides: Callable[[np.ndarray], np.ndarray] | None,
+    circ: np.ndarray,
+    search: Callable[..., _Found],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """The coarse-to-fine search of :func:`plan_motion`: joints (m, 6) (NaN: skipped), link (m,)
+    (row j continues row j-1's motion), IK solutions per laddered rung (-1 elsewhere), p, checks."""
+    m = len(positions)
+    keep = keep.copy()
+    keep[[0, -1]] = True
+    elapsed = np.r_[0.0, np.cumsum(dt)]
+    idx = np.flatnonzero(keep)
+    coarse = search(idx, np.add.reduceat(dt, idx[:-1]))  # Δt summed between kept rungs (one step: the same Δt)
+    chosen = np.full((m, 6), np.nan)
+    chosen[idx] = coarse.q
+    link = np.zeros(m, bool)
+    solutions = np.full(m, -1)
+    solutions[idx] = coarse.solutions
+    p, checks = coarse.rotations, coarse.checks
+    on = np.flatnonzero(coarse.node >= 0)
+    stretches: list[tuple[int, int, bool, bool]] = []  # rows a..b for the full search, pinned ends
+    if len(on) == 0:
+        stretches.append((0, m - 1, False, False))
+    else:
+        if idx[on[0]] > 0:
+            stretches.append((0, int(idx[on[0]]), False, True))
+        if idx[on[-1]] < m - 1:
+            stretches.append((int(idx[on[-1]]), m - 1, True, False))
+        ca, cb = on[:-1], on[1:]
+        a, b = idx[ca], idx[cb]
+        same = coarse.segment[ca] == coarse.segment[cb]
+        adjacent = b == a + 1
+        link[b[adjacent]] = same[adjacent]
+        fill = np.flatnonzero(same & ~adjacent & (coarse.branch[ca] == coarse.branch[cb]))
+        filled, asked = _fill(robot, cell, positions, normals, dt, elapsed, a[fill], b[fill], coarse.q[ca[fill]],
+                              coarse.theta[ca[fill]], coarse.theta[cb[fill]], coarse.branch[ca[fill]], collides, circ,
+                              chosen, link)
+        checks += asked
+        done = adjacent.copy()
+        done[fill[filled]] = True
+        stretches += [(int(x), int(y), True, True) for x, y in zip(a[~done], b[~done])]
+    for x, y, pin_a, pin_b in sorted(stretches):
+        best = None
+        for widen in range(WIDEN + 1):  # a stretch that splits: again with ends WIDEN_STEP kept rungs further out
+            if widen:
+                i, j = np.searchsorted(idx, x) - WIDEN_STEP, np.searchsorted(idx, y) + WIDEN_STEP
+                x, y = int(idx[max(i, 0)]), int(idx[min(j, len(idx) - 1)])
+                pin_a, pin_b = pin_a and i > 0, pin_b and j < len(idx) - 1
+            ends = tuple(chosen[r] if pin and not np.isnan(chosen[r, 0]) else None for r, pin in ((x, pin_a), (y, pin_b)))
+            found = search(slice(x, y + 1), dt[x:y], ends)
+            checks += found.checks
+            seg = found.segment
+            splits = int(((seg[1:] != seg[:-1]) & (seg[1:] >= 0) & (seg[:-1] >= 0)).sum())
+            if best is not None and splits >= best[0]:
+                break  # wider did not help: the split is the ladder's own
+            best = (splits, x, y, ends, found)
+            if splits == 0 or (seg < 0).any() or (x == 0 and y == m - 1):
+                break  # (skipped rungs: the axis deviation's part, not the pins')
+        _, x, y, ends, found = best
+        a0, b0 = int(ends[0] is not None), int(ends[1] is not None)
+        link[x] &= bool(a0)  # a free end starts a motion of its own
+        link[min(y + 1, m - 1)] &= bool(b0) or y == m - 1
+        inner = slice(x + a0, y + 1 - b0)
+        chosen[inner] = found.q[a0:len(found.q) - b0]
+        solutions[inner] = found.solutions[a0:len(found.q) - b0]
+        seg = found.segment
+        link[x + 1:y + 1] = (seg[1:] == seg[:-1]) & (seg[1:] >= 0)
+        p = max(p, found.rotations)
+    return chosen, link, solutions, p, checks
+
+
+def _fill(
+    robot: Robot,
+    cell: Workcell,
+    positions: np.ndarray,
+    normals: np.ndarray,
+    dt: np.ndarray,
+    elapsed: np.ndarray,
+    a: np.ndarray,
+    b: np.ndarray,
+    qa: np.ndarray,
+    theta_a: np.ndarray,
+    theta_b: np.ndarray,
+    branch: np.ndarray,
+    collides: Callable[[np.ndarray], np.ndarray] | None,
+    circ: np.ndarray,
+    chosen: np.ndarray,
+    link: np.ndarray,
+) -> tuple[np.ndarray, int]:
+    """The waypoints strictly between kept rows a[g] and b[g] (one motion, one IK branch) on that
+    branch at θ interpolated in time along the short arc: a gap is filled (``chosen``, ``link``
+    written) when every one of its nodes exists inside the limits, every step of a..b keeps
+    ‖Δq‖∞ ≤ ξΔt (Eq. 4.4) and no node collides (one batched check). Returns filled (G,), checks."""
+    if len(a) == 0:
+        return np.zeros(0, bool), 0
+    inner = b - a - 1
+    gap = np.repeat(np.arange(len(a)), inner)
+    rows = a[gap] + 1 + np.arange(len(gap)) - np.repeat(np.cumsum(inner) - inner, inner)
+    u = (elapsed[rows] - elapsed[a[gap]]) / np.maximum(elapsed[b[gap]] - elapsed[a[gap]], 1e-300)
+    turn = (theta_b - theta_a + np.pi) % TWO_PI - np.pi
+    q, ok = ladder_at(robot, cell, positions[rows], normals[rows], theta_a[gap] + u * turn[gap], branch[gap])
+    good = np.bincount(gap, ~ok, len(a)) == 0
+    # every step of each gap: into its inner rows, and from its last inner row into b
+    cand = chosen.copy()
+    cand[rows] = q
+    into = np.r_[rows, b]
+    _, largest = joint_steps(cand[into - 1], cand[into], circ)
+    fast = ~(largest <= cell.max_joint_speed * dt[into - 1])
+    good &= np.bincount(np.r_[gap, np.arange(len(a))], fast, len(a)) == 0
+    asked = 0
+    if collides is not None:
+        test = good[gap]
+        hit = np.zeros(len(rows), bool)
+        hit[test] = collides(q[test])
+        asked = int(test.sum())
+        good &= np.bincount(gap, hit, len(a)) == 0
+    take = good[gap]
+    chosen[rows[take]] = q[take]
+    link[rows[take]] = True
+    link[b[good]] = True
+    return good, asked
 
 
 def _timestamps(q: np.ndarray, segment: np.ndarray, dt: np.ndarray, max_speed: float) -> np.ndarray:
@@ -243,6 +460,29 @@ def segment_speeds(path_id: np.ndarray, feed: np.ndarray, cell: Workcell) -> np.
     return np.where(same, np.where(feed_s > 0, feed_s, cell.linear_speed), cell.travel_speed)
 
 
+class Remembered:
+    """A collision predicate that answers a configuration it was asked before from memory (bitwise
+    equal joints: the same IK node met again, e.g. when a layer is planned again after an axis
+    deviation or a stretch is searched again); ``asked`` counts the configurations really checked."""
+
+    def __init__(self, collides: Callable[[np.ndarray], np.ndarray]):
+        self.collides, self.known, self.asked = collides, {}, 0
+
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        q = np.ascontiguousarray(q, float)
+        keys = [row.tobytes() for row in q]
+        out = np.array([self.known.get(k, 2) for k in keys], np.int8).reshape(len(q))
+        new = np.flatnonzero(out == 2)
+        if len(new):
+            first = {keys[i]: i for i in new[::-1]}  # repeats inside one call: check once
+            todo = np.array(sorted(first.values()))
+            hit = self.collides(q[todo])
+            self.known.update(zip((keys[i] for i in todo), hit.tolist()))
+            self.asked += len(todo)
+            out[new] = [self.known[keys[i]] for i in new]
+        return out.astype(bool)
+
+
 def plan_layer(
     robot: Robot,
     cell: Workcell,
@@ -251,6 +491,7 @@ def plan_layer(
     collides: Callable[[np.ndarray], np.ndarray] | None = None,
     cost: str = "l1",
     max_rotations: int | None = None,
+    coarse_step: int = COARSE_STEP,
 ) -> PrintMotion:
     """One layer's motion: ``rows`` of ``toolpaths`` (keys of ``toolpaths.npz``, one layer, in print
     order) as a ladder graph of its own (multi-source, like the thesis's per-tool-path graphs, §4.3.1).
@@ -259,24 +500,26 @@ def plan_layer(
     union of the earlier layers): the layer depends on no other layer's motion, so layers are
     independent tasks. Waypoints left without a usable pose get a deviated axis
     (:func:`deviate_axes`) and the layer is planned again with it. Times start at 0 and segments at 0;
-    :func:`join_motions` places the layers one after the other."""
+    :func:`join_motions` places the layers one after the other. ``coarse_step`` > 1: the
+    coarse-to-fine search of :func:`plan_motion` on :func:`coarse_rungs`; 1: the full ladder."""
     start = time.perf_counter()
     rows = np.asarray(rows)
     positions = np.asarray(toolpaths["positions"], float)[rows]
     planned = np.asarray(toolpaths["normals"], float)[rows]
-    speed = segment_speeds(np.asarray(toolpaths["path"])[rows], np.asarray(toolpaths["feed"], float)[rows], cell)
+    path_id = np.asarray(toolpaths["path"])[rows]
+    speed = segment_speeds(path_id, np.asarray(toolpaths["feed"], float)[rows], cell)
+    keep = coarse_rungs(path_id, coarse_step) if coarse_step > 1 else None
     axes, deviation, tried = planned, np.zeros(len(rows)), np.zeros(len(rows), bool)
-    checks = 0
+    collides = None if collides is None else Remembered(collides)
     while True:
         dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed) \
             if len(rows) > 1 else np.zeros(0)
         near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
-        motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near)
-        checks += motion.collision_checks
+        motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near, keep)
         stuck = (motion.segment < 0) & ~tried
         if not stuck.any() or cell.max_axis_deviation <= 0:
             break
-        axes, more = deviate_axes(robot, cell, positions, axes, stuck, collides, motion.rotations)
+        axes, more = deviate_axes(robot, cell, positions, axes, stuck, collides, start_rotations(cell.rotations))
         tried |= stuck
         if not (more > 0).any():
             break
@@ -286,18 +529,19 @@ def plan_layer(
     local = np.cumsum(np.r_[True, seg[1:] != seg[:-1]]) - 1 if len(seg) else seg
     starts = np.r_[True, local[1:] != local[:-1]] if len(seg) else np.zeros(0, bool)
     t = motion.t[done]
+    laddered = motion.solutions[motion.solutions >= 0]
     stats = {
         "layer": int(np.asarray(toolpaths["layer"])[rows[0]]) if len(rows) else 0,
         "waypoints": int(len(rows)),
         "rotations": motion.rotations,
-        "ik_solutions_mean": round(float(motion.solutions.mean()), 2) if len(rows) else 0.0,
-        "ik_solutions_min": int(motion.solutions.min()) if len(rows) else 0,
+        "ik_solutions_mean": round(float(laddered.mean()), 2) if len(laddered) else 0.0,  # laddered rungs
+        "ik_solutions_min": int(laddered.min()) if len(laddered) else 0,
         "splits": [int(rows[s]) for s in motion.splits],
         "winding_splits": [int(rows[s]) for s in motion.winding_splits],
         "skipped": int((~done).sum()),
         "deviated": int((deviation[done] > 0).sum()),
         "max_deviation_deg": round(float(np.degrees(deviation[done].max())), 3) if done.any() else 0.0,
-        "collision_checks": checks,  # over every planning pass of the layer
+        "collision_checks": collides.asked if collides is not None else 0,  # distinct poses, every pass
         "seconds": round(time.perf_counter() - start, 3),
     }
     return PrintMotion(

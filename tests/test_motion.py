@@ -16,13 +16,14 @@ from curvslice.ladder import (
     deviate_axes,
     edge_weights,
     ladder,
+    ladder_at,
     reference_shortest_path,
     shortest_path,
     sparse_edges,
     tilted_axes,
 )
-from curvslice.motion import plan_motion, step_times, unwind
-from curvslice.workcell import load_workcell, waypoints_from_flange
+from curvslice.motion import Remembered, coarse_rungs, plan_motion, step_times, unwind
+from curvslice.workcell import load_workcell, rotation_samples, waypoints_from_flange
 
 
 def _random_ladder(rng, m_max=30, k_max=8):
@@ -274,3 +275,110 @@ def test_axis_deviation_frees_a_waypoint_whose_heater_hits_the_platform(ur5):
     q, ok = ladder(robot, cell, c[:1], axes[:1], cell.rotations)
     assert not scene.collisions(q[0, ok[0]]).all()
     assert dev[1] == 0 and np.allclose(axes[1], t[1], atol=1e-15)  # beyond the bound: left as planned
+
+
+def test_ladder_at_equals_the_ladder_nodes_at_the_sampled_rotations(ur5):
+    robot, cell = ur5
+    c, t = _dome_spiral(20)
+    p = 6
+    q, ok = ladder(robot, cell, c, t, p)
+    rng = np.random.default_rng(7)
+    s, b = rng.integers(0, p, len(c)), rng.integers(0, 8, len(c))
+    got, got_ok = ladder_at(robot, cell, c, t, rotation_samples(p)[s], b)
+    k = np.arange(len(c))
+    np.testing.assert_array_equal(got_ok, ok[k, 8 * s + b])
+    np.testing.assert_allclose(got[got_ok], q[k, 8 * s + b][got_ok], atol=1e-9)
+
+
+def test_coarse_rungs_keep_every_path_end_and_every_step():
+    path = np.repeat([0, 1, 2, 3], [1, 20, 3, 17])
+    keep = coarse_rungs(path, 8)
+    ends = np.flatnonzero(np.r_[True, path[1:] != path[:-1]] | np.r_[path[1:] != path[:-1], True])
+    assert keep[ends].all()
+    for pid in range(4):
+        rows = np.flatnonzero(path == pid)
+        gaps = np.diff(np.flatnonzero(keep[rows]))
+        assert (gaps <= 8).all()  # at most step waypoints between kept rungs inside a path
+    assert keep.sum() < len(path) / 2
+    assert coarse_rungs(path, 1).all()
+
+
+def test_coarse_to_fine_matches_the_full_search_on_a_dome_spiral(ur5):
+    """Every row realized, FK back on the waypoints, limits, ξ and collisions re-checked; the path cost
+    (Eq. 3.4) within 5 % of the full ladder's, with far fewer collision checks."""
+    robot, cell = ur5
+    c, t = _dome_spiral(400)
+    dt = step_times(c, cell.linear_speed, cell.min_step_time)
+    scene = CollisionScene(robot, cell)
+    full = plan_motion(robot, cell, c, t, dt, collides=scene.collisions)
+    fast = plan_motion(robot, cell, c, t, dt, collides=scene.collisions, keep=coarse_rungs(np.zeros(len(c)), 8))
+    assert (fast.segment >= 0).all() and len(fast.splits) <= len(full.splits)
+    pos, axis = waypoints_from_flange(cell, fk_reference(robot, fast.q))
+    assert np.abs(pos - c).max() < 1e-6 and np.abs(axis - t).max() < 1e-9
+    lo, hi = cell.limits(robot)
+    assert (fast.q >= lo).all() and (fast.q <= hi).all()
+    same = fast.segment[1:] == fast.segment[:-1]
+    speed = np.abs(np.diff(fast.q, axis=0)).max(axis=1) / np.diff(fast.t)
+    assert speed[same].max() <= cell.max_joint_speed * (1 + 1e-9)
+    assert not scene.collisions(fast.q).any()
+    # the recomputed cost of the chosen rows is Eq. 3.4 summed inside the motions
+    steps = np.abs(np.diff(fast.q, axis=0)).sum(axis=1)
+    assert fast.cost == pytest.approx(steps[same].sum(), rel=1e-9)
+    assert fast.cost <= full.cost * 1.05
+    assert fast.collision_checks < full.collision_checks / 2
+    assert (fast.solutions[coarse_rungs(np.zeros(len(c)), 8)] > 0).all()
+
+
+def test_coarse_to_fine_falls_back_to_the_full_search_where_filling_fails(ur5):
+    """The axis flip of test_split_when_the_axis_flips_faster_than_xi inside a coarse gap, and a
+    waypoint inside a gap without a collision-free pose: same splits and skips as the full search."""
+    robot, cell = ur5
+    c, t = _dome_spiral(60, turns=0.0, tilt_deg=40.0)
+    t[30:, :2] *= -1
+    dt = step_times(c, cell.linear_speed, cell.min_step_time)
+    small = dataclasses.replace(cell, rotations=4)
+    keep = coarse_rungs(np.zeros(len(c)), 8)
+    full = plan_motion(robot, small, c, t, dt, max_rotations=8)
+    fast = plan_motion(robot, small, c, t, dt, max_rotations=8, keep=keep)
+    assert fast.splits == full.splits == [30]
+
+    def collides(q):  # every pose of waypoint 13 (between kept rungs 8 and 16) collides
+        pos, _ = waypoints_from_flange(small, fk(robot, q))
+        return np.linalg.norm(pos - c[13], axis=1) < 1e-6
+
+    full = plan_motion(robot, small, c[:30], t[:30], dt[:29], collides=collides, max_rotations=8)
+    fast = plan_motion(robot, small, c[:30], t[:30], dt[:29], collides=collides, max_rotations=8, keep=keep[:30])
+    np.testing.assert_array_equal(fast.segment, full.segment)  # skipped at 13, a new motion after it
+    assert fast.segment[13] == -1 and fast.splits == full.splits == [14]
+    assert not collides(fast.q[fast.segment >= 0]).any()
+
+
+def test_batched_axis_deviation_equals_one_waypoint_at_a_time(ur5):
+    robot, cell = ur5
+    scene = CollisionScene(robot, cell)
+    c, t = _platform_waypoints([55.0, 80.0, 50.0, 62.0, 10.0])
+    stuck = np.array([True, True, True, True, False])
+    axes, dev = deviate_axes(robot, cell, c, t, stuck, scene.collisions, 4)
+    for j in range(len(c)):
+        one = np.zeros(len(c), bool)
+        one[j] = stuck[j]
+        a1, d1 = deviate_axes(robot, cell, c, t, one, scene.collisions, 4)
+        assert d1[j] == dev[j]
+        np.testing.assert_allclose(a1[j], axes[j], atol=1e-15)
+    assert dev[4] == 0 and (dev[[0, 2]] > 0).all()  # (62° and 80° need more than the 20° bound)
+
+
+def test_remembered_collisions_ask_each_configuration_once():
+    asked = []
+
+    def collides(q):
+        asked.append(len(q))
+        return q[:, 0] > 0
+
+    memo = Remembered(collides)
+    q = np.random.default_rng(0).normal(size=(50, 6))
+    first = memo(np.r_[q[:30], q[:5]])
+    again = memo(q)
+    np.testing.assert_array_equal(first, np.r_[q[:30], q[:5]][:, 0] > 0)
+    np.testing.assert_array_equal(again, q[:, 0] > 0)
+    assert asked == [30, 20] and memo.asked == 50
