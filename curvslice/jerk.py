@@ -43,10 +43,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import solveh_banded
 from scipy.optimize import minimize
-from scipy.sparse.linalg import spsolve
 
-from curvslice.derivatives import derivative_operators, motion_stats, segment_bounds
+from curvslice.derivatives import derivative_operators, motion_stats, segment_bounds, stencils
 from curvslice.kinematics import Robot, fk, ik, joint_placements, rigid_inverse
 from curvslice.motion import PrintMotion
 from curvslice.time_scaling import Limits, rest_to_rest, retime_moves, time_scale
@@ -121,12 +121,17 @@ class Redundancy:
         pose by FK, see :func:`curvslice.kinematics.ik`)."""
         z = np.asarray(z, float)
         z = z[:, None] if z.ndim == 1 else z
-        q, ok = ik(self.robot, self.flange(z, rows), check=check)
+        T = self.flange(z, rows)
+        q, ok = ik(self.robot, T, check=False)
         k = np.arange(len(rows))
         b = self.branch[rows]
-        q = q[k, b]
+        q, ok = q[k, b], ok[k, b]
+        if check:  # ik's FK re-check (its tolerances), on the one branch kept
+            back = fk(self.robot, q)
+            ok &= (np.linalg.norm(back[:, :3, 3] - T[:, :3, 3], axis=1) <= 1e-3) & \
+                (np.abs(back[:, :3, :3] - T[:, :3, :3]).max(axis=(1, 2)) <= 1e-6)
         q = near + (q - near + np.pi) % (2 * np.pi) - np.pi
-        return q, ok[k, b]
+        return q, ok
 
 
 def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray, eps: float) -> np.ndarray:
@@ -183,11 +188,17 @@ def _excess(value: np.ndarray, bound: np.ndarray) -> np.ndarray:
 
 
 class _Problem:
-    """Eq. 4.12 on a set of rows: jerk residuals and limit penalties as functions of q."""
+    """Eq. 4.12 on a set of rows: jerk residuals and limit penalties as functions of q, each residual
+    group in stencil form (its first row ``start`` (m,), weights (m, 5) on rows start..start+4), so
+    the Gauss-Newton normal equations assemble straight into band storage (:func:`_normal_band`)."""
 
     def __init__(self, t: np.ndarray, segment: np.ndarray, limits: Limits, settings: JerkSettings):
-        _, self.D2, self.D3 = derivative_operators(t, segment)
         n = len(t)
+        self.start, w = stencils(t, segment)
+        cols = np.minimum(self.start[:, None] + np.arange(5), max(n - 1, 0))
+        self.D2, self.D3 = (sp.csr_matrix((w[:, r].ravel(), (np.repeat(np.arange(n), 5), cols.ravel())), shape=(n, n))
+                            for r in (1, 2))
+        self.W2, self.W3 = w[:, 1], w[:, 2]
         same = segment[1:] == segment[:-1]
         dt = np.diff(t)
         # forward differences Δq/Δt inside segments (the ξ test of Eq. 4.4)
@@ -195,6 +206,10 @@ class _Problem:
         m = np.arange(len(rows))
         self.F = sp.csr_matrix((np.r_[-1 / dt[rows], 1 / dt[rows]], (np.r_[m, m], np.r_[rows, rows + 1])),
                                shape=(len(rows), n))
+        self.WF = np.zeros((len(rows), 5))
+        self.WF[:, 0], self.WF[:, 1] = -1 / dt[rows], 1 / dt[rows]
+        self.WI = np.zeros((n, 5))
+        self.WI[:, 0] = 1.0
         self.frow = rows
         self.w = np.ones(6) if settings.weights is None else np.asarray(settings.weights, float)
         self.rho = settings.penalty
@@ -203,25 +218,26 @@ class _Problem:
         self.lim = limits
         self.vmax, self.amax = m * limits.speed, m * limits.acceleration
 
-    def residual_parts(self, q: np.ndarray) -> list[tuple[sp.csr_matrix | None, np.ndarray, np.ndarray]]:
-        """(operator, residual (rows, 6), per-joint scale) for: jerk, a_max, ξ, joint limits."""
-        s = np.sqrt(self.rho)
+    def residual_parts(self, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """(first rows, stencil weights, residual (m, 6), per-joint squared scale (m, 6), 0 where the
+        penalty is inactive) for: jerk, a_max, ξ, joint limits."""
+        n = len(q)
         acc, vel = self.D2 @ q, self.F @ q
-        low = np.minimum(q - self.lim.lower, 0.0)
-        high = np.maximum(q - self.lim.upper, 0.0)
+        lims = np.minimum(q - self.lim.lower, 0.0) + np.maximum(q - self.lim.upper, 0.0)
+        ea, ev = _excess(acc, self.amax), _excess(vel, self.vmax)
         return [
-            (self.D3, self.D3 @ q, np.sqrt(self.w)),
-            (self.D2, _excess(acc, self.amax), np.full(6, np.sqrt(self.rho_a))),
-            (self.F, _excess(vel, self.vmax), np.full(6, s)),
-            (None, low + high, np.full(6, s)),
+            (self.start, self.W3, self.D3 @ q, np.broadcast_to(self.w, (n, 6))),
+            (self.start, self.W2, ea, self.rho_a * (ea != 0)),
+            (self.frow, self.WF, ev, self.rho * (ev != 0)),
+            (np.arange(n), self.WI, lims, self.rho * (lims != 0)),
         ]
 
     def cost_by_row(self, q: np.ndarray) -> np.ndarray:
         """Each residual's squared norm, attributed to the row owning the residual (n,)."""
         out = np.zeros(len(q))
-        for op, r, scale in self.residual_parts(q):
-            v = ((r * scale) ** 2).sum(axis=1)
-            if op is self.F:
+        for first, _, r, c in self.residual_parts(q):
+            v = (r**2 * c).sum(axis=1)
+            if first is self.frow:
                 np.add.at(out, self.frow, v)
             else:
                 out += v
@@ -233,6 +249,32 @@ def _segment_sums(values: np.ndarray, segment: np.ndarray) -> np.ndarray:
     return np.bincount(inv, weights=values)
 
 
+def _normal_band(parts: list, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton normal equations JᵀJ, Jᵀr of the residual groups ``parts`` (see
+    :meth:`_Problem.residual_parts`) w.r.t. z, where dq_l/dz_l = G[l] (n, 6, k): the upper band
+    (u+1, N) of JᵀJ as :func:`scipy.linalg.solveh_banded` reads it (u = 5k-1: a stencil spans 5 rows)
+    and Jᵀr (N,), N = (n+4)·k (4 padding rows so stencils need no clipping)."""
+    n, _, k = G.shape
+    Gp = np.concatenate([G, np.zeros((4, 6, k))])
+    N, u = (n + 4) * k, 5 * k - 1
+    band = np.zeros((u + 1) * N)
+    grad = np.zeros(N)
+    iu, lu = np.triu_indices(5 * k)  # the upper triangle of one stencil's (5k × 5k) block
+    for first, W, r, c in parts:
+        live = np.flatnonzero(c.any(axis=1))
+        if not len(live):
+            continue
+        first, W, sc = first[live], W[live], np.sqrt(c[live])
+        # X[m, j, (a, p)] = √c_j · w_a · dq_j/dz_p of stencil row a: the residual's Jacobian rows
+        X = (sc[:, None, :, None] * W[:, :, None, None] * Gp[first[:, None] + np.arange(5)]).transpose(0, 2, 1, 3)
+        X = X.reshape(len(live), 6, 5 * k)
+        base = first[:, None] * k  # variable index of the stencil's first entry
+        grad += np.bincount((base + np.arange(5 * k)).ravel(), (X.transpose(0, 2, 1) @ (sc * r[live])[..., None]).ravel(), N)
+        blk = (X.transpose(0, 2, 1) @ X)[:, iu, lu]  # (m, entries): XᵀX on the upper triangle
+        band += np.bincount(((u + iu - lu) * N + base + lu).ravel(), blk.ravel(), (u + 1) * N)
+    return band.reshape(u + 1, N), grad
+
+
 def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray,
                   limits: Limits, settings: JerkSettings, tilt_bound: np.ndarray | None = None,
                   history: list | None = None) -> tuple[np.ndarray, np.ndarray, int]:
@@ -241,11 +283,11 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
 
     Residuals: √W q⃛ (Eq. 4.2), √ρ × the excess over the joint limits, ξ and a_max, and √μ × the
     tilt (a small pull back to the planned axis). The normal equations are banded (a row's stencil
-    spans 5 rows) and solved as one sparse system for the whole print; the tilt of row i is projected
-    onto the disc of radius ``tilt_bound[i]`` (rad); a step is kept in a segment only where it lowers
-    that segment's cost, else that segment's damping grows. Rows of branch -1 stay fixed.
-    ``history`` (optional) collects the max |q⃛| per joint after every step (Fig. 4.3). Returns
-    z, q and the steps taken."""
+    spans 5 rows): assembled in band storage and solved by a banded Cholesky factorization for the
+    whole print; the tilt of row i is projected onto the disc of radius ``tilt_bound[i]`` (rad); a
+    step is kept in a segment only where it lowers that segment's cost, else that segment's damping
+    grows. Rows of branch -1 stay fixed. ``history`` (optional) collects the max |q⃛| per joint
+    after every step (Fig. 4.3). Returns z, q and the steps taken."""
     z = np.asarray(z, float)
     z = (z[:, None] if z.ndim == 1 else z).copy()
     n, k = z.shape
@@ -263,43 +305,35 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
     _, seg_of = np.unique(segment, return_inverse=True)
     lam = np.full(seg_of.max() + 1, 1e-3)
     cost = _segment_sums(row_cost(q, z), segment)
-    var = (cols[:, None] * k + np.arange(k)).ravel()
+    fixed = np.ones(n + 4, bool)
+    fixed[cols] = False
+    fixed = np.repeat(fixed, k)
+    u = 5 * k - 1
     steps = 0
+    moved = True
     for _ in range(settings.global_iterations):
-        G = np.zeros((n, 6, k))
-        G[cols] = joint_rates(red, z[cols], cols, q[cols], settings.fd_step)
-        # one sparse Jacobian of every residual (jerk, a_max, ξ, joint limits; per joint) w.r.t. z
-        parts_r, parts_c, parts_v, res = [], [], [], []
-        offset = 0
-        for op, r, scale in prob.residual_parts(q):
-            A = sp.identity(n, format="coo") if op is None else op.tocoo()
-            for j in range(6):
-                active = np.ones(A.shape[0], bool) if op is prob.D3 else r[:, j] != 0
-                if not active.any():
-                    continue
-                keep = active[A.row]
-                parts_r.append(offset + np.repeat(A.row[keep], k))
-                parts_c.append((A.col[keep, None] * k + np.arange(k)).ravel())
-                parts_v.append((A.data[keep, None] * scale[j] * G[A.col[keep], j, :]).ravel())
-                res.append(np.where(active, scale[j] * r[:, j], 0.0))
-                offset += A.shape[0]
-        Jz = sp.csr_matrix((np.concatenate(parts_v), (np.concatenate(parts_r), np.concatenate(parts_c))),
-                           shape=(offset, n * k))
-        JTJ = (Jz.T @ Jz).tocsr()
-        JTr = Jz.T @ np.concatenate(res)
-        if k > 1:
-            tilt = np.zeros((n, k))
-            tilt[:, 1:] = mu
-            JTJ = JTJ + sp.diags(tilt.ravel())
-            JTr += (tilt * z).ravel()
-        H = JTJ.tocsr()[var][:, var]
-        diag = H.diagonal()
-        damp = np.repeat(lam[seg_of[cols]], k)
-        A = H + sp.diags(damp * (diag + 1e-9 * diag.max() + 1e-12))
-        delta = -spsolve(A.tocsc(), JTr[var]).reshape(-1, k)
+        if moved:  # the linearization at the current z (a step rejected everywhere keeps it)
+            G = np.zeros((n, 6, k))
+            G[cols] = joint_rates(red, z[cols], cols, q[cols], settings.fd_step)
+            normal, grad = _normal_band(prob.residual_parts(q), G)
+            if k > 1:  # the tilt's pull back to the planned axis
+                tilt = np.zeros((n + 4, k))
+                tilt[:n, 1:] = mu
+                normal[u] += tilt.ravel()
+                grad[: n * k] += (tilt[:n] * z).ravel()
+            grad[fixed] = 0.0
+            diag = normal[u].copy()
+        band = normal.copy()
+        damp = np.repeat(np.r_[lam[seg_of], np.zeros(4)], k)
+        band[u] = np.where(fixed, 1.0, diag + damp * (diag + 1e-9 * diag.max() + 1e-12))
+        try:
+            delta = -solveh_banded(band, grad, check_finite=False)[: n * k].reshape(n, k)
+        except np.linalg.LinAlgError:  # not positive definite (round-off): damp every segment more
+            lam, moved = lam * 4, False
+            continue
         delta = np.clip(np.nan_to_num(delta), -settings.max_step, settings.max_step)
         new_z = z.copy()
-        new_z[cols] += delta
+        new_z[cols] += delta[cols]
         if k > 1:  # projection onto the allowed tilt
             r = np.linalg.norm(new_z[:, 1:], axis=1)
             new_z[:, 1:] *= np.minimum(1.0, bound / np.maximum(r, 1e-300))[:, None]
@@ -316,6 +350,7 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
         improved = np.where(better, (cost - new_cost) / np.maximum(cost, 1e-300), 0.0)
         cost = np.where(better, new_cost, cost)
         lam = np.where(better, np.maximum(lam / 3, 1e-7), lam * 4)
+        moved = bool(better.any())
         steps += 1
         if history is not None:
             history.append(np.abs(prob.D3 @ q).max(axis=0))
