@@ -74,6 +74,9 @@ class JerkSettings:
     # collision-free pose (or at it), re-filter the 10 rows around it; repeat
     collision_rounds: int = 3
     sqp_iterations: int = 5  # SQP steps per local problem of Alg. 6
+    projection_step: float = np.pi / 500  # rad, the θ re-sampling of Eq. 4.13 (§4.3.3)
+    projection_batch: int = 16  # candidates per colliding row fcl-checks at a time, nearest first
+    projection_checks: int = 256  # candidates per row at most; a row without a free one goes back to its safe pose
     scaling_rounds: int = 80  # rounds of local time-scaling at most
     scale_spread: float = 1.15  # neighbouring steps' stretch factors differ by at most this ratio
     max_tilt_deg: float = 8.0  # the global filter may tilt a tool axis this far (0 = θ only; within the workcell's bound)
@@ -494,6 +497,49 @@ def _solve_window(red, z, q, D2, D3, dt, segment, a, b, seg_first, seg_last, lim
 
 
 # ---------------------------------------------------------------------------------------------
+# §4.3.3: the collision-free projection of a final row
+
+
+def dense_projection(red: Redundancy, z: np.ndarray, q: np.ndarray, rows: np.ndarray, limits: Limits,
+                     collides: Callable[[np.ndarray], np.ndarray] | None, settings: JerkSettings
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Eq. 4.13: for each row whose pose q_d collides (or left the joint limits), θ re-sampled about
+    the waypoint every π/500 (``projection_step``) on the row's IK branch, tilt kept; of the samples
+    whose pose exists, keeps the joint limits and is collision-free, the one nearest q_d in ‖·‖∞.
+    Candidates are fcl-checked nearest first, ``projection_batch`` per row at a time, at most
+    ``projection_checks`` per row. Returns z, q (k, ·), found (k,) and the collision checks made."""
+    m = len(rows)
+    step = settings.projection_step
+    count = int(np.pi / step)
+    offsets = step * np.r_[np.arange(1, count + 1), -np.arange(1, count + 1)]
+    Z = np.repeat(z, len(offsets), axis=0)
+    Z[:, 0] += np.tile(offsets, m)
+    idx = np.repeat(np.arange(m), len(offsets))
+    Q, ok = red.joints(Z, rows[idx], q[idx])
+    ok &= ~limits.beyond(Q)
+    dist = np.where(ok, np.abs(Q - q[idx]).max(axis=1), np.inf).reshape(m, -1)
+    order = np.argsort(dist, axis=1)
+    found = np.zeros(m, bool)
+    pick = np.zeros(m, int)
+    checks = 0
+    for s in range(0, settings.projection_checks, settings.projection_batch):
+        cand = order[:, s:s + settings.projection_batch]
+        live = ~found[:, None] & np.isfinite(np.take_along_axis(dist, cand, axis=1))
+        if not live.any():
+            break
+        r, c = np.nonzero(live)
+        flat = r * len(offsets) + cand[r, c]
+        free = ~collides(Q[flat]) if collides is not None else np.ones(len(flat), bool)
+        checks += len(flat) if collides is not None else 0
+        for rr, f in zip(r[free][::-1], flat[free][::-1]):  # the nearest free candidate of each row wins
+            found[rr], pick[rr] = True, f
+    out = np.flatnonzero(found)
+    z_out, q_out = z.copy(), q.copy()
+    z_out[out], q_out[out] = Z[pick[out]], Q[pick[out]]
+    return z_out, q_out, found, checks
+
+
+# ---------------------------------------------------------------------------------------------
 # the stage
 
 
@@ -522,7 +568,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     safe_z, safe_q = z0.copy(), q0.copy()  # the last pose of each row known collision-free (the graph's first)
     free = branch >= 0
     pinned = np.zeros(len(q), bool)  # rows fixed after a collision
-    steps = iterations = checks = reverted = beyond = 0
+    steps = iterations = checks = reverted = beyond = projected = 0
     for k in range(settings.collision_rounds + 1):
         if k < settings.collision_rounds and free.any():
             # later rounds re-settle only the rows near the ones just fixed, in a few steps
@@ -533,34 +579,31 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
             red.branch = branch
             steps += s
             iterations += it
-        check_collisions = collides_for_layer is not None and layer_of_row is not None
         moved = np.flatnonzero(np.abs(q - safe_q).max(axis=1) > 1e-12)
         hit = np.zeros(len(q), bool)
         hit[moved] = limits.beyond(q[moved])  # the joint limits are hard: the filter only penalizes them
         beyond += int(hit.sum())
-        for value in np.unique(layer_of_row[moved]) if check_collisions else ():
-            rows = moved[layer_of_row[moved] == value]
-            collides = collides_for_layer(int(value))
-            hit[rows] |= collides(q[rows]) if collides is not None else False
-            checks += len(rows)
+        # one pass per layer (its collision scene is set once): fcl on the moved rows (§4.3.3), then the
+        # dense-θ projection (Eq. 4.13) of the rows that collide or left the joint limits
+        for value in np.unique(layer_of_row[moved]) if layer_of_row is not None else [None]:
+            rows = moved if value is None else moved[layer_of_row[moved] == value]
+            collides = collides_for_layer(int(value)) if collides_for_layer is not None and value is not None else None
+            if collides is not None:
+                hit[rows] |= collides(q[rows])
+                checks += len(rows)
+            bad = rows[hit[rows]]
+            if len(bad):
+                pz, pq, found, used = dense_projection(red, z[bad], q[bad], bad, limits, collides, settings)
+                checks += used
+                projected += int(found.sum())
+                safe_z[bad[found]], safe_q[bad[found]] = pz[found], pq[found]
         ok = moved[~hit[moved]]
         safe_z[ok], safe_q[ok] = z[ok], q[ok]
         if not hit.any():
             break
         bad = np.flatnonzero(hit)
         reverted += len(bad)
-        if k < settings.collision_rounds:  # half-way back to the safe pose when that is valid (one more check)
-            mid_z = (z[bad] + safe_z[bad]) / 2
-            mid_q, good = red.joints(mid_z, bad, q[bad])
-            collides_mid = limits.beyond(mid_q)
-            for value in np.unique(layer_of_row[bad]) if check_collisions else ():
-                sel = layer_of_row[bad] == value
-                collides = collides_for_layer(int(value))
-                collides_mid[sel] |= collides(mid_q[sel]) if collides is not None else False
-                checks += int(sel.sum())
-            use = good & ~collides_mid
-            safe_z[bad[use]], safe_q[bad[use]] = mid_z[use], mid_q[use]
-        z[bad], q[bad] = safe_z[bad], safe_q[bad]  # fixed from now on
+        z[bad], q[bad] = safe_z[bad], safe_q[bad]  # projected (or the last safe pose), fixed from now on
         near = np.zeros(len(q) + 1, int)
         np.add.at(near, np.clip(bad - 10, 0, len(q)), 1)
         np.add.at(near, np.clip(bad + 11, 0, len(q)), -1)
@@ -590,6 +633,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
         "collision_checks": checks,
         "rows_reverted_for_collision": reverted - beyond,
         "rows_reverted_for_joint_limits": beyond,
+        "rows_projected": projected,
         "rows_fixed": int((red.branch < 0).sum()),
         "rows_tilted": int((tilted > 1e-6).sum()),
         "max_tilt_deg": round(float(np.degrees(tilted.max())), 3) if len(tilted) else 0.0,
@@ -608,7 +652,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
 
 #: jerk report figures that add up over the print
 SUMMED = ("gauss_newton_steps", "alg6_iterations", "rows_over_limits", "time_scaling_added_s", "collision_checks",
-          "rows_reverted_for_collision", "rows_reverted_for_joint_limits", "rows_fixed", "rows_tilted",
+          "rows_reverted_for_collision", "rows_reverted_for_joint_limits", "rows_projected", "rows_fixed", "rows_tilted",
           "seconds_filter", "seconds")
 
 
