@@ -571,12 +571,17 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     steps = iterations = checks = reverted = beyond = projected = 0
     for k in range(settings.collision_rounds + 1):
         if k < settings.collision_rounds and free.any():
-            # later rounds re-settle only the rows near the ones just fixed, in a few steps
+            # later rounds re-settle only the rows near the ones just fixed, in a few steps, on the
+            # stretches within 8 rows of them (a free row's residuals reach 4 rows, their stencils 2
+            # more: rows farther away are fixed and their stencils see fixed rows only)
             more = settings if k == 0 else replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
-            red.branch = np.where(free, branch, -1)
-            z, q, s = global_filter(red, z, q, t0, seg, limits, more, bound, history)
-            z, q, it = local_filter(red, z, q, t0, seg, limits, more, history)
-            red.branch = branch
+            sub = np.arange(len(q)) if k == 0 else np.flatnonzero(np.convolve(free, np.ones(17), "same") > 0)
+            part = np.cumsum(np.r_[True, (np.diff(sub) > 1) | (seg[sub][1:] != seg[sub][:-1])])
+            sub_red = Redundancy(robot, cell, red.positions[sub], red.axes[sub], red.basis[sub],
+                                 np.where(free, branch, -1)[sub])
+            fig = history if k == 0 else None  # Fig. 4.3 follows the whole print's first filter
+            zs, qs, s = global_filter(sub_red, z[sub], q[sub], t0[sub], part, limits, more, bound[sub], fig)
+            z[sub], q[sub], it = local_filter(sub_red, zs, qs, t0[sub], part, limits, more, fig)
             steps += s
             iterations += it
         moved = np.flatnonzero(np.abs(q - safe_q).max(axis=1) > 1e-12)
