@@ -46,7 +46,7 @@ import scipy.sparse as sp
 from scipy.linalg import solveh_banded
 from scipy.optimize import minimize
 
-from curvslice.derivatives import derivative_operators, motion_stats, segment_bounds, stencils
+from curvslice.derivatives import derivative_operators, derivatives, motion_stats, segment_bounds, stencils
 from curvslice.kinematics import Robot, fk, ik, joint_placements, rigid_inverse
 from curvslice.motion import PrintMotion
 from curvslice.time_scaling import Limits, rest_to_rest, retime_moves, time_scale
@@ -66,6 +66,9 @@ class JerkSettings:
     # runs the thesis's Algorithm 6.
     max_iterations: int = 0
     global_iterations: int = 30  # Gauss-Newton steps of the whole-segment filter (0 = Alg. 6 only)
+    whole_iterations: int = 8  # ... of them on every row; the rest only near rows with an active penalty
+    focus_rounds: int = 3  # the penalized rows are found again this many times during the rest
+    focus_margin: int = 16  # rows around a penalized stencil that vary with it
     penalty: float = 1e4  # weight of the squared excesses over the joint limits and ξ in the global filter
     acceleration_penalty: float = 1e4  # ... over a_max (lowers what the time-scaling must add)
     limit_margin: float = 0.97  # the filters aim at this fraction of ξ and a_max, the time-scaling of a_max, j_max
@@ -496,6 +499,42 @@ def _solve_window(red, z, q, D2, D3, dt, segment, a, b, seg_first, seg_last, lim
     return True
 
 
+def _penalized(prob: _Problem, q: np.ndarray, margin: int) -> np.ndarray:
+    """Rows within ``margin`` of a row whose stencil holds an active penalty (a_max, ξ, joint limits)."""
+    hot = np.zeros(len(q) + 1, int)
+    for first, _, _, c in prob.residual_parts(q)[1:]:
+        live = first[c.any(axis=1)]
+        np.add.at(hot, np.clip(live - margin, 0, len(q)), 1)
+        np.add.at(hot, np.clip(live + 5 + margin, 0, len(q)), -1)
+    return np.cumsum(hot)[:-1] > 0
+
+
+def _settle(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits,
+            settings: JerkSettings, bound: np.ndarray, free: np.ndarray, history: list | None = None
+            ) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """The global filter, then Algorithm 6, with only the ``free`` rows varying, solved on the
+    stretches within 8 rows of them (a free row's residuals reach 4 rows, their stencils 2 more: rows
+    farther away are fixed and their stencils see fixed rows only, so the sub-problem is exact).
+    ``history`` gets the max |q⃛| per joint over the whole trajectory after every step (Fig. 4.3).
+    Returns z, q, the Gauss-Newton steps and the Alg. 6 iterations."""
+    n = len(q)
+    sub = np.arange(n) if free.all() else np.flatnonzero(np.convolve(free, np.ones(17), "same") > 0)
+    part = np.cumsum(np.r_[True, (np.diff(sub) > 1) | (segment[sub][1:] != segment[sub][:-1])])
+    sub_red = Redundancy(red.robot, red.cell, red.positions[sub], red.axes[sub], red.basis[sub],
+                         np.where(free, red.branch, -1)[sub])
+    fig = None if history is None else []
+    zs, qs, s = global_filter(sub_red, z[sub], q[sub], t[sub], part, limits, settings, bound[sub], fig)
+    zs, qs, it = local_filter(sub_red, zs, qs, t[sub], part, limits, settings, fig)
+    if history is not None and fig:
+        rest = np.ones(n, bool)
+        rest[sub] = False
+        _, _, jerk = derivatives(q[rest], t[rest], segment[rest]) if rest.any() else (None, None, np.zeros((1, 6)))
+        history.extend(np.maximum(h, np.abs(jerk).max(axis=0)) for h in fig)
+    z, q = z.copy(), q.copy()
+    z[sub], q[sub] = zs, qs
+    return z, q, s, it
+
+
 # ---------------------------------------------------------------------------------------------
 # §4.3.3: the collision-free projection of a final row
 
@@ -570,20 +609,26 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     pinned = np.zeros(len(q), bool)  # rows fixed after a collision
     steps = iterations = checks = reverted = beyond = projected = 0
     for k in range(settings.collision_rounds + 1):
-        if k < settings.collision_rounds and free.any():
-            # later rounds re-settle only the rows near the ones just fixed, in a few steps, on the
-            # stretches within 8 rows of them (a free row's residuals reach 4 rows, their stencils 2
-            # more: rows farther away are fixed and their stencils see fixed rows only)
-            more = settings if k == 0 else replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
-            sub = np.arange(len(q)) if k == 0 else np.flatnonzero(np.convolve(free, np.ones(17), "same") > 0)
-            part = np.cumsum(np.r_[True, (np.diff(sub) > 1) | (seg[sub][1:] != seg[sub][:-1])])
-            sub_red = Redundancy(robot, cell, red.positions[sub], red.axes[sub], red.basis[sub],
-                                 np.where(free, branch, -1)[sub])
-            fig = history if k == 0 else None  # Fig. 4.3 follows the whole print's first filter
-            zs, qs, s = global_filter(sub_red, z[sub], q[sub], t0[sub], part, limits, more, bound[sub], fig)
-            z[sub], q[sub], it = local_filter(sub_red, zs, qs, t0[sub], part, limits, more, fig)
-            steps += s
-            iterations += it
+        if k == 0 and free.any():
+            # the whole print for a few steps (the jerk drops most), then only the stretches where a
+            # penalty (a_max, ξ, joint limits) is still active, which converge slowly
+            whole = min(settings.whole_iterations, settings.global_iterations)
+            z, q, s, it = _settle(red, z, q, t0, seg, limits, replace(settings, global_iterations=whole), bound,
+                                  free, history)
+            steps, iterations = steps + s, iterations + it
+            left = settings.global_iterations - whole
+            for f in range(settings.focus_rounds):
+                share = left // settings.focus_rounds + (f < left % settings.focus_rounds)
+                focus = _penalized(_Problem(t0, seg, limits, settings), q, settings.focus_margin) & free
+                if share == 0 or not focus.any():
+                    break
+                z, q, s, it = _settle(red, z, q, t0, seg, limits, replace(settings, global_iterations=share), bound,
+                                      focus, history)
+                steps, iterations = steps + s, iterations + it
+        elif k < settings.collision_rounds and free.any():  # re-settle the rows near the ones just fixed
+            fewer = replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
+            z, q, s, it = _settle(red, z, q, t0, seg, limits, fewer, bound, free)
+            steps, iterations = steps + s, iterations + it
         moved = np.flatnonzero(np.abs(q - safe_q).max(axis=1) > 1e-12)
         hit = np.zeros(len(q), bool)
         hit[moved] = limits.beyond(q[moved])  # the joint limits are hard: the filter only penalizes them
