@@ -259,26 +259,36 @@ def _normal_band(parts: list, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Gauss-Newton normal equations JᵀJ, Jᵀr of the residual groups ``parts`` (see
     :meth:`_Problem.residual_parts`) w.r.t. z, where dq_l/dz_l = G[l] (n, 6, k): the upper band
     (u+1, N) of JᵀJ as :func:`scipy.linalg.solveh_banded` reads it (u = 5k-1: a stencil spans 5 rows)
-    and Jᵀr (N,), N = (n+4)·k (4 padding rows so stencils need no clipping)."""
+    and Jᵀr (N,), N = (n+4)·k (4 padding rows so stencils need no clipping).
+
+    Per joint j, JᵀJ's block (l, l+o) is S_j[o, l] · G[l, j] ⊗ G[l+o, j] with S_j = Aᵀ C_j A the
+    (banded) scalar normal matrix of a group's operator A and squared scales C_j: S is summed from
+    the stencils first, then meets G once per offset o."""
     n, _, k = G.shape
+    m = n + 4
     Gp = np.concatenate([G, np.zeros((4, 6, k))])
-    N, u = (n + 4) * k, 5 * k - 1
-    band = np.zeros((u + 1) * N)
-    grad = np.zeros(N)
-    iu, lu = np.triu_indices(5 * k)  # the upper triangle of one stencil's (5k × 5k) block
+    N, u = m * k, 5 * k - 1
+    S = np.zeros((5, m * 6))
+    y = np.zeros(m * 6)  # Aᵀ C r per row and joint
     for first, W, r, c in parts:
         live = np.flatnonzero(c.any(axis=1))
         if not len(live):
             continue
-        first, W, sc = first[live], W[live], np.sqrt(c[live])
-        # X[m, j, (a, p)] = √c_j · w_a · dq_j/dz_p of stencil row a: the residual's Jacobian rows
-        X = (sc[:, None, :, None] * W[:, :, None, None] * Gp[first[:, None] + np.arange(5)]).transpose(0, 2, 1, 3)
-        X = X.reshape(len(live), 6, 5 * k)
-        base = first[:, None] * k  # variable index of the stencil's first entry
-        grad += np.bincount((base + np.arange(5 * k)).ravel(), (X.transpose(0, 2, 1) @ (sc * r[live])[..., None]).ravel(), N)
-        blk = (X.transpose(0, 2, 1) @ X)[:, iu, lu]  # (m, entries): XᵀX on the upper triangle
-        band += np.bincount(((u + iu - lu) * N + base + lu).ravel(), blk.ravel(), (u + 1) * N)
-    return band.reshape(u + 1, N), grad
+        first, W, c, cr = first[live], W[live], c[live], (c * r)[live]
+        for a in range(5):
+            idx = ((first + a)[:, None] * 6 + np.arange(6)).ravel()
+            y += np.bincount(idx, (W[:, a, None] * cr).ravel(), m * 6)
+            for o in range(5 - a):
+                S[o] += np.bincount(idx, (W[:, a, None] * W[:, a + o, None] * c).ravel(), m * 6)
+    S, y = S.reshape(5, m, 6), y.reshape(m, 6)
+    grad = (y[:, :, None] * Gp).sum(axis=1).ravel()
+    band = np.zeros((u + 1, N))
+    for o in range(5):
+        blk = (Gp[: m - o] * S[o, : m - o, :, None]).transpose(0, 2, 1) @ Gp[o:]  # (m-o, k, k)
+        for p in range(k):
+            for s in range(p if o == 0 else 0, k):
+                band[u - o * k + p - s, o * k + s::k] += blk[:, p, s]
+    return band, grad
 
 
 def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray,
