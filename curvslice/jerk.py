@@ -618,57 +618,58 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     free = branch >= 0
     pinned = np.zeros(len(q), bool)  # rows fixed after a collision
     steps = iterations = checks = reverted = beyond = projected = 0
-    for k in range(settings.collision_rounds + 1):
-        if k == 0 and free.any():
-            # the whole print for a few steps (the jerk drops most), then only the stretches where a
-            # penalty (a_max, ξ, joint limits) is still active, which converge slowly
-            whole = min(settings.whole_iterations, settings.global_iterations)
-            z, q, s, it = _settle(red, z, q, t0, seg, limits, replace(settings, global_iterations=whole), bound,
-                                  free, history)
+    if free.any():
+        # the whole print for a few steps (the jerk drops most), then only the stretches where a
+        # penalty (a_max, ξ, joint limits) is still active, which converge slowly
+        whole = min(settings.whole_iterations, settings.global_iterations)
+        z, q, steps, iterations = _settle(red, z, q, t0, seg, limits, replace(settings, global_iterations=whole),
+                                          bound, free, history)
+        left = settings.global_iterations - whole
+        for f in range(settings.focus_rounds):
+            share = left // settings.focus_rounds + (f < left % settings.focus_rounds)
+            focus = _penalized(_Problem(t0, seg, limits, settings), q, settings.focus_margin) & free
+            if share == 0 or not focus.any():
+                break
+            z, q, s, it = _settle(red, z, q, t0, seg, limits, replace(settings, global_iterations=share), bound,
+                                  focus, history)
             steps, iterations = steps + s, iterations + it
-            left = settings.global_iterations - whole
-            for f in range(settings.focus_rounds):
-                share = left // settings.focus_rounds + (f < left % settings.focus_rounds)
-                focus = _penalized(_Problem(t0, seg, limits, settings), q, settings.focus_margin) & free
-                if share == 0 or not focus.any():
-                    break
-                z, q, s, it = _settle(red, z, q, t0, seg, limits, replace(settings, global_iterations=share), bound,
-                                      focus, history)
-                steps, iterations = steps + s, iterations + it
-        elif k < settings.collision_rounds and free.any():  # re-settle the rows near the ones just fixed
-            fewer = replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
-            z, q, s, it = _settle(red, z, q, t0, seg, limits, fewer, bound, free)
-            steps, iterations = steps + s, iterations + it
-        moved = np.flatnonzero(np.abs(q - safe_q).max(axis=1) > 1e-12)
-        hit = np.zeros(len(q), bool)
-        hit[moved] = limits.beyond(q[moved])  # the joint limits are hard: the filter only penalizes them
-        beyond += int(hit.sum())
-        # one pass per layer (its collision scene is set once): fcl on the moved rows (§4.3.3), then the
-        # dense-θ projection (Eq. 4.13) of the rows that collide or left the joint limits
-        for value in np.unique(layer_of_row[moved]) if layer_of_row is not None else [None]:
-            rows = moved if value is None else moved[layer_of_row[moved] == value]
-            collides = collides_for_layer(int(value)) if collides_for_layer is not None and value is not None else None
+    # §4.3.3 layer by layer (its collision scene is set once; segments never span layers): fcl on the
+    # moved rows, the dense-θ projection (Eq. 4.13) of those that collide or left the joint limits
+    # (else back to their graph pose), which stay fixed while the 10 rows either side are filtered
+    # again (a quarter of the steps); repeated
+    fewer = replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
+    groups = [np.arange(len(q))] if layer_of_row is None else [np.flatnonzero(layer_of_row == v) for v in np.unique(layer_of_row)]
+    for rows in groups:
+        value = None if layer_of_row is None else int(layer_of_row[rows[0]])
+        collides = collides_for_layer(value) if collides_for_layer is not None and value is not None else None
+        for k in range(settings.collision_rounds + 1):
+            moved = rows[np.abs(q[rows] - safe_q[rows]).max(axis=1) > 1e-12]
+            hit = limits.beyond(q[moved])  # the joint limits are hard: the filter only penalizes them
+            beyond += int(hit.sum())
             if collides is not None:
-                hit[rows] |= collides(q[rows])
-                checks += len(rows)
-            bad = rows[hit[rows]]
-            if len(bad):
-                pz, pq, found, used = dense_projection(red, z[bad], q[bad], bad, limits, collides, settings)
-                checks += used
-                projected += int(found.sum())
-                safe_z[bad[found]], safe_q[bad[found]] = pz[found], pq[found]
-        ok = moved[~hit[moved]]
-        safe_z[ok], safe_q[ok] = z[ok], q[ok]
-        if not hit.any():
-            break
-        bad = np.flatnonzero(hit)
-        reverted += len(bad)
-        z[bad], q[bad] = safe_z[bad], safe_q[bad]  # projected (or the last safe pose), fixed from now on
-        near = np.zeros(len(q) + 1, int)
-        np.add.at(near, np.clip(bad - 10, 0, len(q)), 1)
-        np.add.at(near, np.clip(bad + 11, 0, len(q)), -1)
-        pinned[bad] = True
-        free = (np.cumsum(near)[:-1] > 0) & (branch >= 0) & ~pinned
+                hit |= collides(q[moved])
+                checks += len(moved)
+            bad = moved[hit]
+            ok = moved[~hit]
+            safe_z[ok], safe_q[ok] = z[ok], q[ok]
+            if not len(bad):
+                break
+            pz, pq, found, used = dense_projection(red, z[bad], q[bad], bad, limits, collides, settings)
+            checks += used
+            projected += int(found.sum())
+            reverted += int((~found).sum())
+            safe_z[bad[found]], safe_q[bad[found]] = pz[found], pq[found]
+            z[bad], q[bad] = safe_z[bad], safe_q[bad]  # fixed from now on
+            pinned[bad] = True
+            if k < settings.collision_rounds:
+                near = np.zeros(len(q) + 1, int)
+                np.add.at(near, np.clip(bad - 10, 0, len(q)), 1)
+                np.add.at(near, np.clip(bad + 11, 0, len(q)), -1)
+                free = np.zeros(len(q), bool)
+                free[rows] = (np.cumsum(near)[:-1] > 0)[rows] & (branch[rows] >= 0) & ~pinned[rows]
+                if free.any():
+                    z, q, s, it = _settle(red, z, q, t0, seg, limits, fewer, bound, free)
+                    steps, iterations = steps + s, iterations + it
     normals = red.axis(z, np.arange(len(q)))
     tilted = np.arccos(np.clip(np.einsum("ij,ij->i", normals, red.axes), -1.0, 1.0))
     filtered = time.perf_counter() - start
@@ -691,7 +692,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
         "time_scaling_added_pct": round(100 * scaled_added / print_steps, 3) if print_steps > 0 else 0.0,
         "moves_s": round(moves, 3),
         "collision_checks": checks,
-        "rows_reverted_for_collision": reverted - beyond,
+        "rows_reverted_for_collision": reverted,
         "rows_reverted_for_joint_limits": beyond,
         "rows_projected": projected,
         "rows_fixed": int((red.branch < 0).sum()),
