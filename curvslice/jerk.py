@@ -142,27 +142,37 @@ class Redundancy:
 
 def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray, eps: float) -> np.ndarray:
     """dq/dz (k, 6, m) at the rows' poses q: the flange's spatial twist per unit of each variable
-    (a finite difference of Eq. 2.3 in pose space) mapped through the inverse of the arm's spatial
-    Jacobian (columns [p_j × a_j; a_j] from the joint frames) — no IK needed."""
+    mapped through the inverse of the arm's spatial Jacobian (columns [p_j × a_j; a_j] from the joint
+    frames) — no IK needed. z moves the deposition frame T_O^P = [R0(t) Rz(θ), c] about its origin,
+    so the flange turns about the nozzle tip p_n (Eq. 2.3): twist [p_n × ω; ω], ω = R_n ω_O with
+    ω_O = -e_z for θ and -Rz(θ)ᵀ ∂vee(R0(t(z))ᵀ R0(t_i))/∂z for a tilt (a finite difference of R0)."""
     F = joint_placements(red.robot, q)
     axis = ["XYZ".index(red.robot.model.joints[j].shortname()[-1]) for j in range(1, 7)]
     a = np.stack([F[:, j + 1, :3, axis[j]] for j in range(6)], axis=2)  # (k, 3, 6)
     p = F[:, 1:, :3, 3].transpose(0, 2, 1)
     J = np.concatenate([np.cross(p, a, axis=1), a], axis=1)  # (k, 6, 6) spatial Jacobian
-    T0inv = rigid_inverse(red.flange(z, rows))
-    out = np.zeros((len(rows), 6, z.shape[1]))
-    for v in range(z.shape[1]):
-        e = np.zeros(z.shape[1])
-        e[v] = eps
-        E = red.flange(z + e, rows) @ T0inv  # the flange's motion, base frame
-        R = E[:, :3, :3]
-        w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1) / (2 * eps)
-        twist = np.concatenate([E[:, :3, 3] / eps, w], axis=1)
-        with np.errstate(all="ignore"):
-            try:
-                out[:, :, v] = np.linalg.solve(J, twist[..., None])[..., 0]
-            except np.linalg.LinAlgError:  # an exactly singular row: solve one by one
-                out[:, :, v] = np.array([np.linalg.lstsq(Jk, tk, rcond=1e-12)[0] for Jk, tk in zip(J, twist)])
+    m, k = z.shape
+    w = np.zeros((m, 3, k))  # ω_O per variable, deposition frame
+    w[:, 2, 0] = -1.0
+    if k > 1:
+        Z = np.repeat(z[None], k, axis=0)
+        Z[np.arange(1, k), :, np.arange(1, k)] += eps
+        axes = red.axis(Z.reshape(-1, k), np.tile(rows, k))
+        R0 = deposition_frames(np.zeros((len(axes), 3)), axes, np.zeros(1))[:, 0, :3, :3].reshape(k, m, 3, 3)
+        M = np.swapaxes(R0[1:], -1, -2) @ R0[0][None]  # R0(t + eps)ᵀ R0(t)
+        vee = np.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1) / (2 * eps)
+        c, s = np.cos(z[:, 0]), np.sin(z[:, 0])
+        w[:, 0, 1:] = (c * vee[..., 0] + s * vee[..., 1]).T  # Rz(θ)ᵀ vee
+        w[:, 1, 1:] = (-s * vee[..., 0] + c * vee[..., 1]).T
+        w[:, 2, 1:] = vee[..., 2].T
+    Rn, pn = red.cell.nozzle[:3, :3], red.cell.nozzle[:3, 3]
+    omega = Rn @ w  # (m, 3, k), base frame
+    twist = np.concatenate([np.cross(pn[None, :, None], omega, axis=1), omega], axis=1)  # (m, 6, k)
+    with np.errstate(all="ignore"):
+        try:
+            out = np.linalg.solve(J, twist)
+        except np.linalg.LinAlgError:  # an exactly singular row: solve one by one
+            out = np.array([np.linalg.lstsq(Jk, tk, rcond=1e-12)[0] for Jk, tk in zip(J, twist)])
     return np.nan_to_num(out)
 
 
@@ -534,7 +544,9 @@ def _settle(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segmen
                          np.where(free, red.branch, -1)[sub])
     fig = None if history is None else []
     zs, qs, s = global_filter(sub_red, z[sub], q[sub], t[sub], part, limits, settings, bound[sub], fig)
-    zs, qs, it = local_filter(sub_red, zs, qs, t[sub], part, limits, settings, fig)
+    it = 0
+    if settings.max_iterations > 0:
+        zs, qs, it = local_filter(sub_red, zs, qs, t[sub], part, limits, settings, fig)
     if history is not None and fig:
         rest = np.ones(n, bool)
         rest[sub] = False
