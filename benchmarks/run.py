@@ -15,6 +15,8 @@ collision checks (§3.5.3, §4.3.1), export (extended G-code, joints.csv, robot 
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import platform
@@ -62,14 +64,16 @@ STAGE_LABELS = {
     "orientation": "· orientations (Eq. 3.3)",
     "ik": "IK ladder (p rotations)",
     "graph_search": "ladder-graph search",
-    "motion": "motion plan + lazy fcl",
+    "motion": "robot stage (graph + jerk + fcl)",
+    "jerk": "· jerk optimization + time-scaling (§4.3.2)",
+    "collision_estimate": "collision estimators vs fcl (§4.4)",
     "export": "export (G-code, joints, program)",
 }
 #: Stages whose time is the sum of per-layer figures the library reports inside another stage.
-DERIVED = {"dual_contouring", "trimming", "spirals", "orientation"}
-MISSING = {
-    "jerk optimization (Alg. 6, §4.3.2)": "no library function yet (Table 4.2 'Optm.': 30 s on WS1)",
-}
+DERIVED = {"dual_contouring", "trimming", "spirals", "orientation", "jerk"}
+MISSING: dict[str, str] = {}
+#: benchmarks/bench_collision.py's labelled configurations per layer and training samples in the suite
+COLLISION_SET, QUICK_COLLISION_SET = (20_000, 3_000), (2_000, 500)
 
 
 # ----------------------------------------------------------------------------- measuring
@@ -299,13 +303,37 @@ def _robot(rec: Recorder, ctx, target: int, counts: dict) -> None:
         return breaks
 
     breaks = rec.run("graph_search", search)
-    ctx.results["robot"] = rec.run("motion", lambda: stage("robot").run(ctx))
-    motion = ctx.results["robot"].motion
+    ctx.results["robot"] = rec.run("motion", lambda: stage("robot").run(ctx),
+                                   lambda r: {"jerk": r.report["timings_s"]["robot_trajectory"]})
+    motion, jerk = ctx.results["robot"].motion, ctx.results["robot"].report["jerk"]
     counts["robot"] = {"robot": ctx.settings.robot, "waypoints": len(rows), "layers": len(per_layer),
                        "rotations": cell.rotations, "ik_nodes": int(sum(v.sum() for _, v in rungs)),
                        "breaks_without_collisions": breaks, "rows": int(len(motion.q)),
                        "segments": int(len(np.unique(motion.segment))),
-                       "collision_checks": int(sum(s["collision_checks"] for s in motion.layers))}
+                       "collision_checks": int(sum(s["collision_checks"] for s in motion.layers)),
+                       "trajectory": {k: jerk.get(k) for k in ("before", "after", "rows_over_limits",
+                                                               "time_scaling_added_pct", "rows_projected")}}
+    layer = int(subset.layer[per_layer[len(per_layer) // 2][0]])
+    _collision_estimate(rec, ctx, layer, *(QUICK_COLLISION_SET if target <= QUICK_ROBOT_WAYPOINTS else COLLISION_SET),
+                        counts)
+
+
+def _collision_estimate(rec: Recorder, ctx, layer: int, configs: int, samples: int, counts: dict) -> None:
+    """benchmarks/bench_collision.py (the learned SVM of §4.4 and the sphere proxy against fcl on
+    ``configs`` labelled configurations near the contact C-space, ``samples`` Algorithm 7 training
+    samples) on one layer; its rows go into ``counts``."""
+    from benchmarks import bench_collision
+    from curvslice.pipeline import stage
+
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in ("field", "layers"):
+            stage(name).save(ctx.results[name], Path(tmp), ctx.settings, ctx.results)
+
+        def estimate() -> list[dict]:
+            with contextlib.redirect_stdout(io.StringIO()):  # its JSON lines: the rows are kept instead
+                return bench_collision.run(Path(tmp), [layer], configs, samples, 0.05, ctx.settings.robot)
+
+        counts["collision_estimate"] = rec.run("collision_estimate", estimate)
 
 
 # ----------------------------------------------------------------------------- the suite
@@ -557,21 +585,43 @@ def markdown(result: dict[str, object]) -> str:
               f"{ws1['optm']:g} s, dense graph {ws1['dense']:,.0f} s ({PAPER_MACHINE}). Ours on the first layers of each model "
               "(per-waypoint rates make the sizes comparable; ratio = ours / thesis per waypoint).", "",
               "| case | waypoints | IK s | graph search s | IK + search s per 1k wpt (ratio to WS1 init) "
-              "| motion + fcl s per 1k wpt (ratio) | collision checks |", "|---|---|---|---|---|---|---|"]
+              "| robot stage s per 1k wpt (ratio to WS1 total) | jerk opt. s per 1k wpt (ratio to WS1 optm) "
+              "| J / max jerk lower | print time added | collision checks |", "|---|---|---|---|---|---|---|---|---|---|"]
     per_k = ws1["init"] / ws1["waypoints"] * 1000
+    optm_k, total_k = (ws1[k] / ws1["waypoints"] * 1000 for k in ("optm", "total"))
+    estimators = []
     for c in cases:
         if "ik" not in c["stages"]:
             continue
         rb = c["counts"].get("robot")
-        ik, gs, mo = _median(c, "ik"), _median(c, "graph_search"), _median(c, "motion")
+        ik, gs, mo, jk = (_median(c, k) for k in ("ik", "graph_search", "motion", "jerk"))
         if rb is None:  # the motion stage was stopped before the counts were known
             lines.append(f"| {_case_title(c)} | ≥ {st['robot_waypoints']:,} | {_fmt(ik)} | {_fmt(gs)} | – "
-                         f"| {_cell(c['stages'].get('motion'))} in all | – |")
+                         f"| {_cell(c['stages'].get('motion'))} in all | – | – | – | – |")
             continue
         init_k = (ik + gs) / rb["waypoints"] * 1000
         mo_k = mo / rb["waypoints"] * 1000
+        tr = rb.get("trajectory") or {}
+        if jk is not None and tr.get("after"):
+            jk_k = jk / rb["waypoints"] * 1000
+            b, a = tr["before"], tr["after"]
+            lower_j = 100 * (1 - a["total_squared_jerk"] / max(b["total_squared_jerk"], 1e-300))
+            lower_max = 100 * (1 - max(a["max_jerk"]) / max(max(b["max_jerk"]), 1e-300))
+            jerk_cells = (f"{_fmt(jk_k)} ({jk_k / optm_k:.2f}) | {lower_j:.1f} % / {lower_max:.1f} % "
+                          f"| {tr['time_scaling_added_pct']:.1f} %")
+        else:
+            jerk_cells = "– | – | –"
         lines.append(f"| {_case_title(c)} | {rb['waypoints']:,} | {_fmt(ik)} | {_fmt(gs)} | {_fmt(init_k)} ({init_k / per_k:.2f}) "
-                     f"| {_fmt(mo_k)} ({mo_k / per_k:.2f}) | {rb['collision_checks']:,} |")
+                     f"| {_fmt(mo_k)} ({mo_k / total_k:.2f}) | {jerk_cells} | {rb['collision_checks']:,} |")
+        estimators += [(c, r) for r in c["counts"].get("collision_estimate") or []]
+    if estimators:
+        lines += ["", "Collision estimation (§4.4, benchmarks/bench_collision.py) against fcl on labelled configurations "
+                  "near the contact C-space of one layer of the robot subset (false \"free\" must be 0):", "",
+                  "| case | layer | estimator | configs | false free | false collision % | query µs per config | training s |",
+                  "|---|---|---|---|---|---|---|---|"]
+        lines += [f"| {_case_title(c)} | {r['layer']} | {r['estimator']} | {r['configs']:,} | {r['false_free']} "
+                  f"| {r['false_collision_pct']:.2f} | {r['query_us_per_config']:.1f} | {r.get('train_s', 0.0):.2f} |"
+                  for c, r in estimators]
 
     sweep = result.get("sweep") or []
     if sweep:
@@ -586,7 +636,7 @@ def markdown(result: dict[str, object]) -> str:
             lines.append(f"| {STAGE_LABELS[k]} | " + " | ".join(_cell(c["stages"][k]) for c in sweep)
                          + f" | {'–' if slope is None else f'{slope:.2f}'} |")
     lines += ["", "## Not yet implemented", ""]
-    lines += [f"- {name}: {why}" for name, why in MISSING.items()]
+    lines += [f"- {name}: {why}" for name, why in MISSING.items()] or ["- (nothing listed)"]
     lines += ["", "![time per stage; time against voxels](results.png)", ""]
     return "\n".join(lines)
 

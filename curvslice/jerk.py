@@ -43,10 +43,10 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.linalg import solveh_banded
 from scipy.optimize import minimize
-from scipy.sparse.linalg import spsolve
 
-from curvslice.derivatives import derivative_operators, motion_stats, segment_bounds
+from curvslice.derivatives import derivative_operators, derivatives, motion_stats, segment_bounds, stencils
 from curvslice.kinematics import Robot, fk, ik, joint_placements, rigid_inverse
 from curvslice.motion import PrintMotion
 from curvslice.time_scaling import Limits, rest_to_rest, retime_moves, time_scale
@@ -66,6 +66,9 @@ class JerkSettings:
     # runs the thesis's Algorithm 6.
     max_iterations: int = 0
     global_iterations: int = 30  # Gauss-Newton steps of the whole-segment filter (0 = Alg. 6 only)
+    whole_iterations: int = 8  # ... of them on every row; the rest only near rows with an active penalty
+    focus_rounds: int = 3  # the penalized rows are found again this many times during the rest
+    focus_margin: int = 16  # rows around a penalized stencil that vary with it
     penalty: float = 1e4  # weight of the squared excesses over the joint limits and ξ in the global filter
     acceleration_penalty: float = 1e4  # ... over a_max (lowers what the time-scaling must add)
     limit_margin: float = 0.97  # the filters aim at this fraction of ξ and a_max, the time-scaling of a_max, j_max
@@ -74,6 +77,9 @@ class JerkSettings:
     # collision-free pose (or at it), re-filter the 10 rows around it; repeat
     collision_rounds: int = 3
     sqp_iterations: int = 5  # SQP steps per local problem of Alg. 6
+    projection_step: float = np.pi / 500  # rad, the θ re-sampling of Eq. 4.13 (§4.3.3)
+    projection_batch: int = 16  # candidates per colliding row fcl-checks at a time, nearest first
+    projection_checks: int = 256  # candidates per row at most; a row without a free one goes back to its safe pose
     scaling_rounds: int = 80  # rounds of local time-scaling at most
     scale_spread: float = 1.15  # neighbouring steps' stretch factors differ by at most this ratio
     max_tilt_deg: float = 8.0  # the global filter may tilt a tool axis this far (0 = θ only; within the workcell's bound)
@@ -121,37 +127,52 @@ class Redundancy:
         pose by FK, see :func:`curvslice.kinematics.ik`)."""
         z = np.asarray(z, float)
         z = z[:, None] if z.ndim == 1 else z
-        q, ok = ik(self.robot, self.flange(z, rows), check=check)
+        T = self.flange(z, rows)
+        q, ok = ik(self.robot, T, check=False)
         k = np.arange(len(rows))
         b = self.branch[rows]
-        q = q[k, b]
+        q, ok = q[k, b], ok[k, b]
+        if check:  # ik's FK re-check (its tolerances), on the one branch kept
+            back = fk(self.robot, q)
+            ok &= (np.linalg.norm(back[:, :3, 3] - T[:, :3, 3], axis=1) <= 1e-3) & \
+                (np.abs(back[:, :3, :3] - T[:, :3, :3]).max(axis=(1, 2)) <= 1e-6)
         q = near + (q - near + np.pi) % (2 * np.pi) - np.pi
-        return q, ok[k, b]
+        return q, ok
 
 
 def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray, eps: float) -> np.ndarray:
     """dq/dz (k, 6, m) at the rows' poses q: the flange's spatial twist per unit of each variable
-    (a finite difference of Eq. 2.3 in pose space) mapped through the inverse of the arm's spatial
-    Jacobian (columns [p_j × a_j; a_j] from the joint frames) — no IK needed."""
+    mapped through the inverse of the arm's spatial Jacobian (columns [p_j × a_j; a_j] from the joint
+    frames) — no IK needed. z moves the deposition frame T_O^P = [R0(t) Rz(θ), c] about its origin,
+    so the flange turns about the nozzle tip p_n (Eq. 2.3): twist [p_n × ω; ω], ω = R_n ω_O with
+    ω_O = -e_z for θ and -Rz(θ)ᵀ ∂vee(R0(t(z))ᵀ R0(t_i))/∂z for a tilt (a finite difference of R0)."""
     F = joint_placements(red.robot, q)
     axis = ["XYZ".index(red.robot.model.joints[j].shortname()[-1]) for j in range(1, 7)]
     a = np.stack([F[:, j + 1, :3, axis[j]] for j in range(6)], axis=2)  # (k, 3, 6)
     p = F[:, 1:, :3, 3].transpose(0, 2, 1)
     J = np.concatenate([np.cross(p, a, axis=1), a], axis=1)  # (k, 6, 6) spatial Jacobian
-    T0inv = rigid_inverse(red.flange(z, rows))
-    out = np.zeros((len(rows), 6, z.shape[1]))
-    for v in range(z.shape[1]):
-        e = np.zeros(z.shape[1])
-        e[v] = eps
-        E = red.flange(z + e, rows) @ T0inv  # the flange's motion, base frame
-        R = E[:, :3, :3]
-        w = np.stack([R[:, 2, 1] - R[:, 1, 2], R[:, 0, 2] - R[:, 2, 0], R[:, 1, 0] - R[:, 0, 1]], 1) / (2 * eps)
-        twist = np.concatenate([E[:, :3, 3] / eps, w], axis=1)
-        with np.errstate(all="ignore"):
-            try:
-                out[:, :, v] = np.linalg.solve(J, twist[..., None])[..., 0]
-            except np.linalg.LinAlgError:  # an exactly singular row: solve one by one
-                out[:, :, v] = np.array([np.linalg.lstsq(Jk, tk, rcond=1e-12)[0] for Jk, tk in zip(J, twist)])
+    m, k = z.shape
+    w = np.zeros((m, 3, k))  # ω_O per variable, deposition frame
+    w[:, 2, 0] = -1.0
+    if k > 1:
+        Z = np.repeat(z[None], k, axis=0)
+        Z[np.arange(1, k), :, np.arange(1, k)] += eps
+        axes = red.axis(Z.reshape(-1, k), np.tile(rows, k))
+        R0 = deposition_frames(np.zeros((len(axes), 3)), axes, np.zeros(1))[:, 0, :3, :3].reshape(k, m, 3, 3)
+        M = np.swapaxes(R0[1:], -1, -2) @ R0[0][None]  # R0(t + eps)ᵀ R0(t)
+        vee = np.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1) / (2 * eps)
+        c, s = np.cos(z[:, 0]), np.sin(z[:, 0])
+        w[:, 0, 1:] = (c * vee[..., 0] + s * vee[..., 1]).T  # Rz(θ)ᵀ vee
+        w[:, 1, 1:] = (-s * vee[..., 0] + c * vee[..., 1]).T
+        w[:, 2, 1:] = vee[..., 2].T
+    Rn, pn = red.cell.nozzle[:3, :3], red.cell.nozzle[:3, 3]
+    omega = Rn @ w  # (m, 3, k), base frame
+    twist = np.concatenate([np.cross(pn[None, :, None], omega, axis=1), omega], axis=1)  # (m, 6, k)
+    with np.errstate(all="ignore"):
+        try:
+            out = np.linalg.solve(J, twist)
+        except np.linalg.LinAlgError:  # an exactly singular row: solve one by one
+            out = np.array([np.linalg.lstsq(Jk, tk, rcond=1e-12)[0] for Jk, tk in zip(J, twist)])
     return np.nan_to_num(out)
 
 
@@ -183,11 +204,17 @@ def _excess(value: np.ndarray, bound: np.ndarray) -> np.ndarray:
 
 
 class _Problem:
-    """Eq. 4.12 on a set of rows: jerk residuals and limit penalties as functions of q."""
+    """Eq. 4.12 on a set of rows: jerk residuals and limit penalties as functions of q, each residual
+    group in stencil form (its first row ``start`` (m,), weights (m, 5) on rows start..start+4), so
+    the Gauss-Newton normal equations assemble straight into band storage (:func:`_normal_band`)."""
 
     def __init__(self, t: np.ndarray, segment: np.ndarray, limits: Limits, settings: JerkSettings):
-        _, self.D2, self.D3 = derivative_operators(t, segment)
         n = len(t)
+        self.start, w = stencils(t, segment)
+        cols = np.minimum(self.start[:, None] + np.arange(5), max(n - 1, 0))
+        self.D2, self.D3 = (sp.csr_matrix((w[:, r].ravel(), (np.repeat(np.arange(n), 5), cols.ravel())), shape=(n, n))
+                            for r in (1, 2))
+        self.W2, self.W3 = w[:, 1], w[:, 2]
         same = segment[1:] == segment[:-1]
         dt = np.diff(t)
         # forward differences Δq/Δt inside segments (the ξ test of Eq. 4.4)
@@ -195,6 +222,10 @@ class _Problem:
         m = np.arange(len(rows))
         self.F = sp.csr_matrix((np.r_[-1 / dt[rows], 1 / dt[rows]], (np.r_[m, m], np.r_[rows, rows + 1])),
                                shape=(len(rows), n))
+        self.WF = np.zeros((len(rows), 5))
+        self.WF[:, 0], self.WF[:, 1] = -1 / dt[rows], 1 / dt[rows]
+        self.WI = np.zeros((n, 5))
+        self.WI[:, 0] = 1.0
         self.frow = rows
         self.w = np.ones(6) if settings.weights is None else np.asarray(settings.weights, float)
         self.rho = settings.penalty
@@ -203,25 +234,26 @@ class _Problem:
         self.lim = limits
         self.vmax, self.amax = m * limits.speed, m * limits.acceleration
 
-    def residual_parts(self, q: np.ndarray) -> list[tuple[sp.csr_matrix | None, np.ndarray, np.ndarray]]:
-        """(operator, residual (rows, 6), per-joint scale) for: jerk, a_max, ξ, joint limits."""
-        s = np.sqrt(self.rho)
+    def residual_parts(self, q: np.ndarray) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:
+        """(first rows, stencil weights, residual (m, 6), per-joint squared scale (m, 6), 0 where the
+        penalty is inactive) for: jerk, a_max, ξ, joint limits."""
+        n = len(q)
         acc, vel = self.D2 @ q, self.F @ q
-        low = np.minimum(q - self.lim.lower, 0.0)
-        high = np.maximum(q - self.lim.upper, 0.0)
+        lims = np.minimum(q - self.lim.lower, 0.0) + np.maximum(q - self.lim.upper, 0.0)
+        ea, ev = _excess(acc, self.amax), _excess(vel, self.vmax)
         return [
-            (self.D3, self.D3 @ q, np.sqrt(self.w)),
-            (self.D2, _excess(acc, self.amax), np.full(6, np.sqrt(self.rho_a))),
-            (self.F, _excess(vel, self.vmax), np.full(6, s)),
-            (None, low + high, np.full(6, s)),
+            (self.start, self.W3, self.D3 @ q, np.broadcast_to(self.w, (n, 6))),
+            (self.start, self.W2, ea, self.rho_a * (ea != 0)),
+            (self.frow, self.WF, ev, self.rho * (ev != 0)),
+            (np.arange(n), self.WI, lims, self.rho * (lims != 0)),
         ]
 
     def cost_by_row(self, q: np.ndarray) -> np.ndarray:
         """Each residual's squared norm, attributed to the row owning the residual (n,)."""
         out = np.zeros(len(q))
-        for op, r, scale in self.residual_parts(q):
-            v = ((r * scale) ** 2).sum(axis=1)
-            if op is self.F:
+        for first, _, r, c in self.residual_parts(q):
+            v = (r**2 * c).sum(axis=1)
+            if first is self.frow:
                 np.add.at(out, self.frow, v)
             else:
                 out += v
@@ -233,6 +265,42 @@ def _segment_sums(values: np.ndarray, segment: np.ndarray) -> np.ndarray:
     return np.bincount(inv, weights=values)
 
 
+def _normal_band(parts: list, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gauss-Newton normal equations JᵀJ, Jᵀr of the residual groups ``parts`` (see
+    :meth:`_Problem.residual_parts`) w.r.t. z, where dq_l/dz_l = G[l] (n, 6, k): the upper band
+    (u+1, N) of JᵀJ as :func:`scipy.linalg.solveh_banded` reads it (u = 5k-1: a stencil spans 5 rows)
+    and Jᵀr (N,), N = (n+4)·k (4 padding rows so stencils need no clipping).
+
+    Per joint j, JᵀJ's block (l, l+o) is S_j[o, l] · G[l, j] ⊗ G[l+o, j] with S_j = Aᵀ C_j A the
+    (banded) scalar normal matrix of a group's operator A and squared scales C_j: S is summed from
+    the stencils first, then meets G once per offset o."""
+    n, _, k = G.shape
+    m = n + 4
+    Gp = np.concatenate([G, np.zeros((4, 6, k))])
+    N, u = m * k, 5 * k - 1
+    S = np.zeros((5, m * 6))
+    y = np.zeros(m * 6)  # Aᵀ C r per row and joint
+    for first, W, r, c in parts:
+        live = np.flatnonzero(c.any(axis=1))
+        if not len(live):
+            continue
+        first, W, c, cr = first[live], W[live], c[live], (c * r)[live]
+        for a in range(5):
+            idx = ((first + a)[:, None] * 6 + np.arange(6)).ravel()
+            y += np.bincount(idx, (W[:, a, None] * cr).ravel(), m * 6)
+            for o in range(5 - a):
+                S[o] += np.bincount(idx, (W[:, a, None] * W[:, a + o, None] * c).ravel(), m * 6)
+    S, y = S.reshape(5, m, 6), y.reshape(m, 6)
+    grad = (y[:, :, None] * Gp).sum(axis=1).ravel()
+    band = np.zeros((u + 1, N))
+    for o in range(5):
+        blk = (Gp[: m - o] * S[o, : m - o, :, None]).transpose(0, 2, 1) @ Gp[o:]  # (m-o, k, k)
+        for p in range(k):
+            for s in range(p if o == 0 else 0, k):
+                band[u - o * k + p - s, o * k + s::k] += blk[:, p, s]
+    return band, grad
+
+
 def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray,
                   limits: Limits, settings: JerkSettings, tilt_bound: np.ndarray | None = None,
                   history: list | None = None) -> tuple[np.ndarray, np.ndarray, int]:
@@ -241,11 +309,11 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
 
     Residuals: √W q⃛ (Eq. 4.2), √ρ × the excess over the joint limits, ξ and a_max, and √μ × the
     tilt (a small pull back to the planned axis). The normal equations are banded (a row's stencil
-    spans 5 rows) and solved as one sparse system for the whole print; the tilt of row i is projected
-    onto the disc of radius ``tilt_bound[i]`` (rad); a step is kept in a segment only where it lowers
-    that segment's cost, else that segment's damping grows. Rows of branch -1 stay fixed.
-    ``history`` (optional) collects the max |q⃛| per joint after every step (Fig. 4.3). Returns
-    z, q and the steps taken."""
+    spans 5 rows): assembled in band storage and solved by a banded Cholesky factorization for the
+    whole print; the tilt of row i is projected onto the disc of radius ``tilt_bound[i]`` (rad); a
+    step is kept in a segment only where it lowers that segment's cost, else that segment's damping
+    grows. Rows of branch -1 stay fixed. ``history`` (optional) collects the max |q⃛| per joint
+    after every step (Fig. 4.3). Returns z, q and the steps taken."""
     z = np.asarray(z, float)
     z = (z[:, None] if z.ndim == 1 else z).copy()
     n, k = z.shape
@@ -263,43 +331,35 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
     _, seg_of = np.unique(segment, return_inverse=True)
     lam = np.full(seg_of.max() + 1, 1e-3)
     cost = _segment_sums(row_cost(q, z), segment)
-    var = (cols[:, None] * k + np.arange(k)).ravel()
+    fixed = np.ones(n + 4, bool)
+    fixed[cols] = False
+    fixed = np.repeat(fixed, k)
+    u = 5 * k - 1
     steps = 0
+    moved = True
     for _ in range(settings.global_iterations):
-        G = np.zeros((n, 6, k))
-        G[cols] = joint_rates(red, z[cols], cols, q[cols], settings.fd_step)
-        # one sparse Jacobian of every residual (jerk, a_max, ξ, joint limits; per joint) w.r.t. z
-        parts_r, parts_c, parts_v, res = [], [], [], []
-        offset = 0
-        for op, r, scale in prob.residual_parts(q):
-            A = sp.identity(n, format="coo") if op is None else op.tocoo()
-            for j in range(6):
-                active = np.ones(A.shape[0], bool) if op is prob.D3 else r[:, j] != 0
-                if not active.any():
-                    continue
-                keep = active[A.row]
-                parts_r.append(offset + np.repeat(A.row[keep], k))
-                parts_c.append((A.col[keep, None] * k + np.arange(k)).ravel())
-                parts_v.append((A.data[keep, None] * scale[j] * G[A.col[keep], j, :]).ravel())
-                res.append(np.where(active, scale[j] * r[:, j], 0.0))
-                offset += A.shape[0]
-        Jz = sp.csr_matrix((np.concatenate(parts_v), (np.concatenate(parts_r), np.concatenate(parts_c))),
-                           shape=(offset, n * k))
-        JTJ = (Jz.T @ Jz).tocsr()
-        JTr = Jz.T @ np.concatenate(res)
-        if k > 1:
-            tilt = np.zeros((n, k))
-            tilt[:, 1:] = mu
-            JTJ = JTJ + sp.diags(tilt.ravel())
-            JTr += (tilt * z).ravel()
-        H = JTJ.tocsr()[var][:, var]
-        diag = H.diagonal()
-        damp = np.repeat(lam[seg_of[cols]], k)
-        A = H + sp.diags(damp * (diag + 1e-9 * diag.max() + 1e-12))
-        delta = -spsolve(A.tocsc(), JTr[var]).reshape(-1, k)
+        if moved:  # the linearization at the current z (a step rejected everywhere keeps it)
+            G = np.zeros((n, 6, k))
+            G[cols] = joint_rates(red, z[cols], cols, q[cols], settings.fd_step)
+            normal, grad = _normal_band(prob.residual_parts(q), G)
+            if k > 1:  # the tilt's pull back to the planned axis
+                tilt = np.zeros((n + 4, k))
+                tilt[:n, 1:] = mu
+                normal[u] += tilt.ravel()
+                grad[: n * k] += (tilt[:n] * z).ravel()
+            grad[fixed] = 0.0
+            diag = normal[u].copy()
+        band = normal.copy()
+        damp = np.repeat(np.r_[lam[seg_of], np.zeros(4)], k)
+        band[u] = np.where(fixed, 1.0, diag + damp * (diag + 1e-9 * diag.max() + 1e-12))
+        try:
+            delta = -solveh_banded(band, grad, check_finite=False)[: n * k].reshape(n, k)
+        except np.linalg.LinAlgError:  # not positive definite (round-off): damp every segment more
+            lam, moved = lam * 4, False
+            continue
         delta = np.clip(np.nan_to_num(delta), -settings.max_step, settings.max_step)
         new_z = z.copy()
-        new_z[cols] += delta
+        new_z[cols] += delta[cols]
         if k > 1:  # projection onto the allowed tilt
             r = np.linalg.norm(new_z[:, 1:], axis=1)
             new_z[:, 1:] *= np.minimum(1.0, bound / np.maximum(r, 1e-300))[:, None]
@@ -316,6 +376,7 @@ def global_filter(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
         improved = np.where(better, (cost - new_cost) / np.maximum(cost, 1e-300), 0.0)
         cost = np.where(better, new_cost, cost)
         lam = np.where(better, np.maximum(lam / 3, 1e-7), lam * 4)
+        moved = bool(better.any())
         steps += 1
         if history is not None:
             history.append(np.abs(prob.D3 @ q).max(axis=0))
@@ -458,6 +519,87 @@ def _solve_window(red, z, q, D2, D3, dt, segment, a, b, seg_first, seg_last, lim
     return True
 
 
+def _penalized(prob: _Problem, q: np.ndarray, margin: int) -> np.ndarray:
+    """Rows within ``margin`` of a row whose stencil holds an active penalty (a_max, ξ, joint limits)."""
+    hot = np.zeros(len(q) + 1, int)
+    for first, _, _, c in prob.residual_parts(q)[1:]:
+        live = first[c.any(axis=1)]
+        np.add.at(hot, np.clip(live - margin, 0, len(q)), 1)
+        np.add.at(hot, np.clip(live + 5 + margin, 0, len(q)), -1)
+    return np.cumsum(hot)[:-1] > 0
+
+
+def _settle(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits,
+            settings: JerkSettings, bound: np.ndarray, free: np.ndarray, history: list | None = None
+            ) -> tuple[np.ndarray, np.ndarray, int, int]:
+    """The global filter, then Algorithm 6, with only the ``free`` rows varying, solved on the
+    stretches within 8 rows of them (a free row's residuals reach 4 rows, their stencils 2 more: rows
+    farther away are fixed and their stencils see fixed rows only, so the sub-problem is exact).
+    ``history`` gets the max |q⃛| per joint over the whole trajectory after every step (Fig. 4.3).
+    Returns z, q, the Gauss-Newton steps and the Alg. 6 iterations."""
+    n = len(q)
+    sub = np.arange(n) if free.all() else np.flatnonzero(np.convolve(free, np.ones(17), "same") > 0)
+    part = np.cumsum(np.r_[True, (np.diff(sub) > 1) | (segment[sub][1:] != segment[sub][:-1])])
+    sub_red = Redundancy(red.robot, red.cell, red.positions[sub], red.axes[sub], red.basis[sub],
+                         np.where(free, red.branch, -1)[sub])
+    fig = None if history is None else []
+    zs, qs, s = global_filter(sub_red, z[sub], q[sub], t[sub], part, limits, settings, bound[sub], fig)
+    it = 0
+    if settings.max_iterations > 0:
+        zs, qs, it = local_filter(sub_red, zs, qs, t[sub], part, limits, settings, fig)
+    if history is not None and fig:
+        rest = np.ones(n, bool)
+        rest[sub] = False
+        _, _, jerk = derivatives(q[rest], t[rest], segment[rest]) if rest.any() else (None, None, np.zeros((1, 6)))
+        history.extend(np.maximum(h, np.abs(jerk).max(axis=0)) for h in fig)
+    z, q = z.copy(), q.copy()
+    z[sub], q[sub] = zs, qs
+    return z, q, s, it
+
+
+# ---------------------------------------------------------------------------------------------
+# §4.3.3: the collision-free projection of a final row
+
+
+def dense_projection(red: Redundancy, z: np.ndarray, q: np.ndarray, rows: np.ndarray, limits: Limits,
+                     collides: Callable[[np.ndarray], np.ndarray] | None, settings: JerkSettings
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Eq. 4.13: for each row whose pose q_d collides (or left the joint limits), θ re-sampled about
+    the waypoint every π/500 (``projection_step``) on the row's IK branch, tilt kept; of the samples
+    whose pose exists, keeps the joint limits and is collision-free, the one nearest q_d in ‖·‖∞.
+    Candidates are fcl-checked nearest first, ``projection_batch`` per row at a time, at most
+    ``projection_checks`` per row. Returns z, q (k, ·), found (k,) and the collision checks made."""
+    m = len(rows)
+    step = settings.projection_step
+    count = int(np.pi / step)
+    offsets = step * np.r_[np.arange(1, count + 1), -np.arange(1, count + 1)]
+    Z = np.repeat(z, len(offsets), axis=0)
+    Z[:, 0] += np.tile(offsets, m)
+    idx = np.repeat(np.arange(m), len(offsets))
+    Q, ok = red.joints(Z, rows[idx], q[idx])
+    ok &= ~limits.beyond(Q)
+    dist = np.where(ok, np.abs(Q - q[idx]).max(axis=1), np.inf).reshape(m, -1)
+    order = np.argsort(dist, axis=1)
+    found = np.zeros(m, bool)
+    pick = np.zeros(m, int)
+    checks = 0
+    for s in range(0, settings.projection_checks, settings.projection_batch):
+        cand = order[:, s:s + settings.projection_batch]
+        live = ~found[:, None] & np.isfinite(np.take_along_axis(dist, cand, axis=1))
+        if not live.any():
+            break
+        r, c = np.nonzero(live)
+        flat = r * len(offsets) + cand[r, c]
+        free = ~collides(Q[flat]) if collides is not None else np.ones(len(flat), bool)
+        checks += len(flat) if collides is not None else 0
+        for rr, f in zip(r[free][::-1], flat[free][::-1]):  # the nearest free candidate of each row wins
+            found[rr], pick[rr] = True, f
+    out = np.flatnonzero(found)
+    z_out, q_out = z.copy(), q.copy()
+    z_out[out], q_out[out] = Z[pick[out]], Q[pick[out]]
+    return z_out, q_out, found, checks
+
+
 # ---------------------------------------------------------------------------------------------
 # the stage
 
@@ -487,50 +629,59 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     safe_z, safe_q = z0.copy(), q0.copy()  # the last pose of each row known collision-free (the graph's first)
     free = branch >= 0
     pinned = np.zeros(len(q), bool)  # rows fixed after a collision
-    steps = iterations = checks = reverted = beyond = 0
-    for k in range(settings.collision_rounds + 1):
-        if k < settings.collision_rounds and free.any():
-            # later rounds re-settle only the rows near the ones just fixed, in a few steps
-            more = settings if k == 0 else replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
-            red.branch = np.where(free, branch, -1)
-            z, q, s = global_filter(red, z, q, t0, seg, limits, more, bound, history)
-            z, q, it = local_filter(red, z, q, t0, seg, limits, more, history)
-            red.branch = branch
-            steps += s
-            iterations += it
-        check_collisions = collides_for_layer is not None and layer_of_row is not None
-        moved = np.flatnonzero(np.abs(q - safe_q).max(axis=1) > 1e-12)
-        hit = np.zeros(len(q), bool)
-        hit[moved] = limits.beyond(q[moved])  # the joint limits are hard: the filter only penalizes them
-        beyond += int(hit.sum())
-        for value in np.unique(layer_of_row[moved]) if check_collisions else ():
-            rows = moved[layer_of_row[moved] == value]
-            collides = collides_for_layer(int(value))
-            hit[rows] |= collides(q[rows]) if collides is not None else False
-            checks += len(rows)
-        ok = moved[~hit[moved]]
-        safe_z[ok], safe_q[ok] = z[ok], q[ok]
-        if not hit.any():
-            break
-        bad = np.flatnonzero(hit)
-        reverted += len(bad)
-        if k < settings.collision_rounds:  # half-way back to the safe pose when that is valid (one more check)
-            mid_z = (z[bad] + safe_z[bad]) / 2
-            mid_q, good = red.joints(mid_z, bad, q[bad])
-            collides_mid = limits.beyond(mid_q)
-            for value in np.unique(layer_of_row[bad]) if check_collisions else ():
-                sel = layer_of_row[bad] == value
-                collides = collides_for_layer(int(value))
-                collides_mid[sel] |= collides(mid_q[sel]) if collides is not None else False
-                checks += int(sel.sum())
-            use = good & ~collides_mid
-            safe_z[bad[use]], safe_q[bad[use]] = mid_z[use], mid_q[use]
-        z[bad], q[bad] = safe_z[bad], safe_q[bad]  # fixed from now on
-        near = np.zeros(len(q) + 1, int)
-        np.add.at(near, np.clip(bad - 10, 0, len(q)), 1)
-        np.add.at(near, np.clip(bad + 11, 0, len(q)), -1)
-        pinned[bad] = True
-        free = (np.cumsum(near)[:-1] > 0) & (branch >= 0) & ~pinned
+    steps = iterations = checks = reverted = beyond = projected = 0
+    if free.any():
+        # the whole print for a few steps (the jerk drops most), then only the stretches where a
+        # penalty (a_max, ξ, joint limits) is still active, which converge slowly
+        whole = min(settings.whole_iterations, settings.global_iterations)
+        z, q, steps, iterations = _settle(red, z, q, t0, seg, limits, replace(settings, global_iterations=whole),
+                                          bound, free, history)
+        left = settings.global_iterations - whole
+        for f in range(settings.focus_rounds):
+            share = left // settings.focus_rounds + (f < left % settings.focus_rounds)
+            focus = _penalized(_Problem(t0, seg, limits, settings), q, settings.focus_margin) & free
+            if share == 0 or not focus.any():
+                break
+            z, q, s, it = _settle(red, z, q, t0, seg, limits, replace(settings, global_iterations=share), bound,
+                                  focus, history)
+            steps, iterations = steps + s, iterations + it
+    # §4.3.3 layer by layer (its collision scene is set once; segments never span layers): fcl on the
+    # moved rows, the dense-θ projection (Eq. 4.13) of those that collide or left the joint limits
+    # (else back to their graph pose), which stay fixed while the 10 rows either side are filtered
+    # again (a quarter of the steps); repeated
+    fewer = replace(settings, global_iterations=max(settings.global_iterations // 4, 1))
+    groups = [np.arange(len(q))] if layer_of_row is None else [np.flatnonzero(layer_of_row == v) for v in np.unique(layer_of_row)]
+    for rows in groups:
+        value = None if layer_of_row is None else int(layer_of_row[rows[0]])
+        collides = collides_for_layer(value) if collides_for_layer is not None and value is not None else None
+        for k in range(settings.collision_rounds + 1):
+            moved = rows[np.abs(q[rows] - safe_q[rows]).max(axis=1) > 1e-12]
+            hit = limits.beyond(q[moved])  # the joint limits are hard: the filter only penalizes them
+            beyond += int(hit.sum())
+            if collides is not None:
+                hit |= collides(q[moved])
+                checks += len(moved)
+            bad = moved[hit]
+            ok = moved[~hit]
+            safe_z[ok], safe_q[ok] = z[ok], q[ok]
+            if not len(bad):
+                break
+            pz, pq, found, used = dense_projection(red, z[bad], q[bad], bad, limits, collides, settings)
+            checks += used
+            projected += int(found.sum())
+            reverted += int((~found).sum())
+            safe_z[bad[found]], safe_q[bad[found]] = pz[found], pq[found]
+            z[bad], q[bad] = safe_z[bad], safe_q[bad]  # fixed from now on
+            pinned[bad] = True
+            if k < settings.collision_rounds:
+                near = np.zeros(len(q) + 1, int)
+                np.add.at(near, np.clip(bad - 10, 0, len(q)), 1)
+                np.add.at(near, np.clip(bad + 11, 0, len(q)), -1)
+                free = np.zeros(len(q), bool)
+                free[rows] = (np.cumsum(near)[:-1] > 0)[rows] & (branch[rows] >= 0) & ~pinned[rows]
+                if free.any():
+                    z, q, s, it = _settle(red, z, q, t0, seg, limits, fewer, bound, free)
+                    steps, iterations = steps + s, iterations + it
     normals = red.axis(z, np.arange(len(q)))
     tilted = np.arccos(np.clip(np.einsum("ij,ij->i", normals, red.axes), -1.0, 1.0))
     filtered = time.perf_counter() - start
@@ -553,8 +704,9 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
         "time_scaling_added_pct": round(100 * scaled_added / print_steps, 3) if print_steps > 0 else 0.0,
         "moves_s": round(moves, 3),
         "collision_checks": checks,
-        "rows_reverted_for_collision": reverted - beyond,
+        "rows_reverted_for_collision": reverted,
         "rows_reverted_for_joint_limits": beyond,
+        "rows_projected": projected,
         "rows_fixed": int((red.branch < 0).sum()),
         "rows_tilted": int((tilted > 1e-6).sum()),
         "max_tilt_deg": round(float(np.degrees(tilted.max())), 3) if len(tilted) else 0.0,
@@ -573,7 +725,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
 
 #: jerk report figures that add up over the print
 SUMMED = ("gauss_newton_steps", "alg6_iterations", "rows_over_limits", "time_scaling_added_s", "collision_checks",
-          "rows_reverted_for_collision", "rows_reverted_for_joint_limits", "rows_fixed", "rows_tilted",
+          "rows_reverted_for_collision", "rows_reverted_for_joint_limits", "rows_projected", "rows_fixed", "rows_tilted",
           "seconds_filter", "seconds")
 
 

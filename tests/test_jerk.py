@@ -11,9 +11,9 @@ import pytest
 from curvslice.collision import CollisionScene
 from curvslice.exporters.joints_csv import write_robot_outputs
 from curvslice.derivatives import derivatives, uniform_jerk
-from curvslice.jerk import JerkSettings, global_filter, local_filter, redundancy, trajectory_stage
+from curvslice.jerk import JerkSettings, dense_projection, global_filter, local_filter, redundancy, trajectory_stage
 from curvslice.time_scaling import Limits, rest_to_rest, time_scale
-from curvslice.kinematics import fk_reference, load_robot
+from curvslice.kinematics import fk_reference, joint_placements, load_robot
 from curvslice.motion import plan_motion, plan_print, step_times
 from curvslice.verify import robot as verify_robot
 from curvslice.verify.robot import _local_derivatives
@@ -155,3 +155,51 @@ def test_verify_fails_the_graph_path_and_passes_the_jerk_one(dome, tmp_path):
             assert not failed, failed
             assert report["after"]["total_squared_jerk"] < 0.1 * report["before"]["total_squared_jerk"]
             assert report["rows_over_limits"] == 0
+
+
+def _ball_obstacle(robot, centre, radius):
+    """A known obstacle: the wrist frame (joint 5) inside a ball of ``radius`` mm about ``centre``."""
+    return lambda q: np.linalg.norm(joint_placements(robot, q)[:, 5, :3, 3] - centre, axis=1) < radius
+
+
+def test_dense_projection_is_the_nearest_free_sample_of_eq_4_13(dome):
+    cell, robot, pos, nor, motion = dome
+    limits = Limits.of(robot, cell)
+    red, theta = redundancy(robot, cell, pos, nor, motion.q)
+    rows = np.array([10, 40])
+    z = np.c_[theta[rows], np.zeros((2, 2))]
+    collides = _ball_obstacle(robot, joint_placements(robot, motion.q[rows[:1]])[0, 5, :3, 3], 40.0)
+    assert collides(motion.q[rows[:1]]).all()
+    settings = JerkSettings(projection_checks=4000)
+    pz, pq, found, checks = dense_projection(red, z, motion.q[rows], rows, limits, collides, settings)
+    assert found.all() and checks > 0
+    assert not collides(pq).any() and not limits.beyond(pq).any()
+    err_pos, err_axis = _on_waypoints(cell, robot, pq, pos[rows], nor[rows])
+    assert err_pos <= 1e-6 and err_axis <= 1e-6
+    for i, r in enumerate(rows):  # brute force: every θ sample (step π/500), every one fcl-checked
+        s = theta[r] + np.pi / 500 * np.r_[np.arange(1, 501), -np.arange(1, 501)]
+        qq, ok = red.joints(np.c_[s, np.zeros((len(s), 2))], np.full(len(s), r), np.tile(motion.q[r], (len(s), 1)))
+        good = ok & ~limits.beyond(qq) & ~collides(qq)
+        best = np.abs(qq[good] - motion.q[r]).max(axis=1).min()
+        assert np.abs(pq[i] - motion.q[r]).max() == pytest.approx(best, abs=1e-12)
+
+
+def test_a_final_row_hitting_an_obstacle_is_projected_not_reverted(dome):
+    cell, robot, pos, nor, motion = dome
+    n = len(pos)
+    tp = dict(positions=pos, normals=nor, layer=np.ones(n, np.int32), path=np.ones(n, np.int32),
+              extrusion=np.r_[0.0, np.full(n - 1, 0.05)], thickness=np.full(n, 0.8), feed=np.full(n, 600.0))
+    motion = plan_print(robot, cell, tp)
+    free_run, _ = trajectory_stage(robot, cell, tp, motion, "jerk")
+    # an obstacle where the optimized pose of row 35 puts the wrist, missed by the graph's pose
+    centre = joint_placements(robot, free_run.q[[35]])[0, 5, :3, 3]
+    radius = 0.5 * np.linalg.norm(joint_placements(robot, motion.q)[:, 5, :3, 3] - centre, axis=1).min()
+    collides = _ball_obstacle(robot, centre, radius)
+    assert not collides(motion.q).any() and collides(free_run.q).any()
+    out, report = trajectory_stage(robot, cell, tp, motion, "jerk", lambda layer: collides)
+    assert not collides(out.q).any()
+    assert report["rows_projected"] >= 1
+    err_pos, err_axis = _on_waypoints(cell, robot, out.q, pos, out.normals)
+    assert err_pos <= 1e-6 and err_axis <= 1e-6
+    assert report["rows_over_limits"] == 0
+    assert report["after"]["total_squared_jerk"] < 0.1 * report["before"]["total_squared_jerk"]
