@@ -143,16 +143,14 @@ class _Builder:
             chain = chain[:-1]
         rings = [self.tree.rings[i] for i in chain]
         cuts: list[float] = []
-        point = anchor
         tangent = host_tangent
-        for k, ring in enumerate(rings):
+        for k, (ring, point) in enumerate(zip(rings, self.cut_line(chain, anchor))):
             s, _ = _closest_s(ring, point)
             if tangent is not None and ring.length > 0 and np.dot(_tangent(ring, s, self.w), tangent) < 0:
                 ring = _reversed(ring)
                 s = ring.length - s
             rings[k] = ring
             cuts.append(s)
-            point = _point_at(np.vstack([ring.points, ring.points[:1]]), ring.cumlen, s)
             tangent = _tangent(ring, s, self.w)
         dots = [r.length < DOT_RING * self.w for r in rings]
         # children hosted by the innermost ring (branches), root siblings by ring 0
@@ -186,6 +184,24 @@ class _Builder:
             arcs.append(self._ring_walk(ring, start, end, direction, hosted.get(k, []), s))
         return np.vstack(arcs)
 
+    def cut_line(self, chain: list[int], anchor: np.ndarray) -> list[np.ndarray]:
+        """Cut point of every ring of ``chain`` (outermost first): the innermost ring's point nearest
+        to ``anchor``, then outwards each ring's point nearest to the cut of the ring inside it.
+
+        Every point of an inner ring lies about a width from the ring around it (the boundary
+        distance grows by one width from one ring to the next, at most one width per width walked),
+        but not the converse: an outer ring's point may lie far from a small or off-centre inner
+        ring. Propagated outwards, the cuts line up on one cut line (Zhao et al. 2016) and the links
+        of the spiral across it stay about a width long wherever the anchor lies; propagated
+        inwards from the anchor, a link could cross the whole region over the passes in between."""
+        points: list[np.ndarray] = []
+        point = anchor
+        for i in reversed(chain):
+            ring = self.tree.rings[i]
+            point = _point_at(np.vstack([ring.points, ring.points[:1]]), ring.cumlen, _closest_s(ring, point)[0])
+            points.append(point)
+        return points[::-1]
+
     def _separate(self, ring_id: int) -> None:
         self.failed += 1
         first = self.tree.rings[ring_id].points[0]
@@ -202,7 +218,8 @@ class _Builder:
         placed: list[tuple[float, int]] = []  # (offset along the walk, child)
         shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
         for child in children:
-            s_child, dist = _closest_s(ring, self._nearest_point(child, ring))
+            # where the child's cut line meets the host (its outermost cut, next to the host)
+            s_child, dist = _closest_s(ring, self.cut_line(self.chain_from(child), self._nearest_point(child, ring))[0])
             offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
             taken = [o for o, _ in placed]
             ok_pos = None
