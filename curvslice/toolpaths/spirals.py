@@ -15,8 +15,8 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from curvslice.toolpaths.constants import (CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
-                                           SPLICE_SHIFT, SPLICE_SHIFTS, THIN_LOOP)
-from curvslice.toolpaths.rings import Ring, loop_centre_line, thin_rise
+                                           SPLICE_SHIFT, SPLICE_SHIFTS)
+from curvslice.toolpaths.rings import Ring, lone_thin_loop, loop_centre_line, thin_rise
 
 
 # ----------------------------------------------------------------------------- ring geometry
@@ -160,7 +160,7 @@ class _Builder:
             hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
         if siblings:
             hosted.setdefault(0, []).extend(siblings)
-        if len(rings) == 1 and not hosted and rings[0].rise < max(thin_rise(rings[0].floor, self.w), THIN_LOOP * self.w):
+        if len(rings) == 1 and not hosted and lone_thin_loop(rings[0], self.w):
             # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
             # as the region (fit_beads), instead of two sides printed over each other
             return loop_centre_line(rings[0].points)
