@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from curvslice.toolpaths.constants import (CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
+from curvslice.toolpaths.constants import (CORNER_ANGLE, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
                                            SPLICE_SHIFT, SPLICE_SHIFTS)
 from curvslice.toolpaths.rings import Ring, lone_thin_loop, loop_centre_line, thin_rise
 
@@ -65,6 +65,28 @@ def _tangent(ring: Ring, s: float, span: float) -> np.ndarray:
     pts = np.vstack([ring.points, ring.points[:1]])
     total = cum[-1]
     return _point_at(pts, cum, (s + span) % total) - _point_at(pts, cum, (s - span) % total)
+
+
+def _seam(ring: Ring, s: float, width: float) -> float:
+    """Arclength of a lone ring's seam: the point nearest (along the ring) to ``s`` where the ring
+    turns less than ``CORNER_ANGLE`` over a width either side, so the ends of the walk meet along a
+    straight stretch and their round caps touch; at a sharp tip they would be lengthened past
+    each other (:func:`~curvslice.toolpaths.beads.fit_beads`); ``s`` itself where no stretch is
+    that straight."""
+    cum, total = ring.cumlen, ring.length
+    if total <= 4.0 * width:
+        return s
+    closed = np.vstack([ring.points, ring.points[:1]])
+    at = cum[:-1]
+    ahead, behind = (np.column_stack([np.interp((at + d) % total, cum, closed[:, i]) for i in range(3)])
+                     for d in (width, -width))
+    u, v = ring.points - behind, ahead - ring.points
+    cos = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-300)
+    straight = np.nonzero(cos > np.cos(CORNER_ANGLE))[0]
+    if len(straight) == 0:
+        return s
+    off = np.abs((at[straight] - s + 0.5 * total) % total - 0.5 * total)
+    return float(at[straight[np.argmin(off)]])
 
 
 def _reversed(ring: Ring) -> Ring:
@@ -152,6 +174,8 @@ class _Builder:
             rings[k] = ring
             cuts.append(s)
             tangent = _tangent(ring, s, self.w)
+        if len(rings) == 1 and host_tangent is None:  # a seam of its own, not a splice's links
+            cuts[0] = _seam(rings[0], cuts[0], self.w)
         dots = [r.length < DOT_RING * self.w for r in rings]
         # children hosted by the innermost ring (branches), root siblings by ring 0
         hosted: dict[int, list[int]] = {}
@@ -176,7 +200,10 @@ class _Builder:
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
-            g = float(np.clip(ring.length / CUT_SHARE, CUT_RANGE[0] * self.w, CUT_RANGE[1] * self.w)) if n >= 3 else self.gap
+            if n == 1:  # no link crosses the cut: the walk stops a bead short of its start, round caps touching
+                g = self.w
+            else:
+                g = float(np.clip(ring.length / CUT_SHARE, CUT_RANGE[0] * self.w, CUT_RANGE[1] * self.w)) if n >= 3 else self.gap
             if k % 2 == 0:
                 start, end, direction = s - g / 2, s + g / 2, -1
             else:
