@@ -174,7 +174,8 @@ class _Builder:
             rings[k] = ring
             cuts.append(s)
             tangent = _tangent(ring, s, self.w)
-        if len(rings) == 1 and host_tangent is None:  # a seam of its own, not a splice's links
+        seam = len(rings) == 1 and host_tangent is None  # a lone ring's own seam: no link crosses its cut
+        if seam:
             cuts[0] = _seam(rings[0], cuts[0], self.w)
         dots = [r.length < DOT_RING * self.w for r in rings]
         # children hosted by the innermost ring (branches), root siblings by ring 0
@@ -200,7 +201,7 @@ class _Builder:
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
-            if n == 1:  # no link crosses the cut: the walk stops a bead short of its start, round caps touching
+            if seam:  # the walk stops a bead short of its start, the round caps touching
                 g = self.w
             else:
                 g = float(np.clip(ring.length / CUT_SHARE, CUT_RANGE[0] * self.w, CUT_RANGE[1] * self.w)) if n >= 3 else self.gap
