@@ -309,10 +309,12 @@ def test_thin_loop_is_one_centre_pass(monkeypatch):
     assert coverage >= 0.95 and overlap <= 0.05
     monkeypatch.setattr("curvslice.toolpaths.spirals.thin_rise", lambda floor, width: 0.0)  # the loop itself
     monkeypatch.setattr("curvslice.toolpaths.rings.thin_rise", lambda floor, width: 0.0)
-    monkeypatch.setattr("curvslice.toolpaths.spirals.THIN_LOOP", 0.0)
+    monkeypatch.setattr("curvslice.toolpaths.rings.THIN_LOOP", 0.0)  # lone_thin_loop
     _, (_, loop_overlap) = measure()
-    # measured 0.17 before the floor's excess went over the layer's edge, 0.024 since; the centre pass 0
-    assert loop_overlap > overlap + 0.01
+    # measured 0.17 before the floor's excess went over the layer's edge, 0.024 since, 0.008 once a
+    # lone loop's seam lies on a straight stretch one width open (its ends no longer lengthened past
+    # each other); the centre pass 0
+    assert loop_overlap > overlap
 
 
 def test_fit_beads_tiles_unevenly_spaced_passes():

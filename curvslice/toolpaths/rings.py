@@ -19,7 +19,7 @@ from scipy.spatial import cKDTree
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (BEAD_MIN, BEAD_RANGE, CENTRE_BIN, DENSE_STEP, DOT_RING, FIRST_LEVEL, GAP_LEVELS,
                                            ISLAND_RISE, PEAK_RISE, ROUND_RING,
-                                           SLIVER_TOP)
+                                           SLIVER_TOP, THIN_LOOP)
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import run_labels, run_offsets
 
@@ -77,6 +77,12 @@ def thin_rise(floor: float, width: float) -> float:
     ``2r + w`` ≤ ``2·floor·w`` (0.3 w at the default thickness 0.8 w: a strip 0.6 w broad)."""
     return max(floor - 0.5, 0.0) * width
 
+
+
+def lone_thin_loop(ring: Ring, width: float) -> bool:
+    """Whether ``ring``, alone in its region (a spiral of one ring), is printed as one pass down its
+    middle: it rises less than :func:`thin_rise` or than ``THIN_LOOP`` widths."""
+    return ring.rise < max(thin_rise(ring.floor, width), THIN_LOOP * width)
 
 
 def _edge_ids(faces: np.ndarray, n_vertices: int) -> np.ndarray:
@@ -241,15 +247,22 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
     widths (``floor_of(points)``, the narrowest bead along the contour, default ``BEAD_MIN``), i.e.
     the peak ``1.5·floor − 0.5`` widths above the ring; else the ring's beads widen
     over the ridge (:func:`~curvslice.toolpaths.beads.fit_beads`). A dot (a ring shorter than
-    ``DOT_RING`` widths) inside an inner ring is left out where that ring's widest beads reach the
-    peak: the spiral would turn on it, and its links in and out would lie side by side.
+    ``DOT_RING`` widths) inside a ring is left out where that ring's widest beads reach the
+    peak: the spiral would turn on it, and its links in and out would lie side by side; alone
+    in the outermost ring's band (a ridge of fragments along a strip) the dots' beads lay over the
+    ring's own, which widen to the ridge anyway (cheburashka 0.8 layer 4: 18 % overlap), unless
+    that ring would be a thin loop without the dot (:func:`lone_thin_loop`: its centre pass would
+    not reach the bulge the dot marks; rocker-arm 0.8 layer 101). The
+    widest bead ``BEAD_RANGE[1]`` reaches ``BEAD_RANGE[1] - ½`` widths inwards from an inner ring
+    (its outer half-width is shared with the ring outside) and ``BEAD_RANGE[1] - FIRST_LEVEL``
+    from the outermost one (the layer's edge lies ``FIRST_LEVEL`` outside it).
     """
     bounding: dict[int, list[Ring]] = {}
     for r in rings:
         bounding.setdefault(r.below, []).append(r)
         bounding.setdefault(r.above, []).append(r)
     low = np.r_[-np.inf, levels]
-    reach = (BEAD_RANGE[1] - 0.5) * width  # inwards from a ring, by its widest bead
+    reach = (BEAD_RANGE[1] - 0.5) * width  # inwards from an inner ring, by its widest bead
     extra: list[Ring] = []
     lines: list[np.ndarray] = []
     next_comp = len(bands.top)
@@ -275,7 +288,8 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
             if not dot and r.rise < thin_rise(floor, width):
                 if not around or rise >= (1.5 * floor - 0.5) * width:
                     lines.append(loop_centre_line(r.points))
-            elif around and dot and b >= 2 and rise <= reach:
+            elif around and dot and (b >= 2 or not lone_thin_loop(around[0], width)) \
+                    and rise <= reach + (0.5 - FIRST_LEVEL) * width * (b == 1):  # the outermost reaches farther
                 continue
             else:
                 extra.append(Ring(r.level, r.points, c, next_comp + r.above, r.top, floor))

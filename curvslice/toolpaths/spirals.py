@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from curvslice.toolpaths.constants import (CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
-                                           SPLICE_SHIFT, SPLICE_SHIFTS, THIN_LOOP)
-from curvslice.toolpaths.rings import Ring, loop_centre_line, thin_rise
+from curvslice.toolpaths.constants import (CORNER_ANGLE, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
+                                           SPLICE_SHIFT, SPLICE_SHIFTS)
+from curvslice.toolpaths.rings import Ring, lone_thin_loop, loop_centre_line, thin_rise
 
 
 # ----------------------------------------------------------------------------- ring geometry
@@ -65,6 +65,28 @@ def _tangent(ring: Ring, s: float, span: float) -> np.ndarray:
     pts = np.vstack([ring.points, ring.points[:1]])
     total = cum[-1]
     return _point_at(pts, cum, (s + span) % total) - _point_at(pts, cum, (s - span) % total)
+
+
+def _seam(ring: Ring, s: float, width: float) -> float:
+    """Arclength of a lone ring's seam: the point nearest (along the ring) to ``s`` where the ring
+    turns less than ``CORNER_ANGLE`` over a width either side, so the ends of the walk meet along a
+    straight stretch and their round caps touch; at a sharp tip they would be lengthened past
+    each other (:func:`~curvslice.toolpaths.beads.fit_beads`); ``s`` itself where no stretch is
+    that straight."""
+    cum, total = ring.cumlen, ring.length
+    if total <= 4.0 * width:
+        return s
+    closed = np.vstack([ring.points, ring.points[:1]])
+    at = cum[:-1]
+    ahead, behind = (np.column_stack([np.interp((at + d) % total, cum, closed[:, i]) for i in range(3)])
+                     for d in (width, -width))
+    u, v = ring.points - behind, ahead - ring.points
+    cos = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-300)
+    straight = np.nonzero(cos > np.cos(CORNER_ANGLE))[0]
+    if len(straight) == 0:
+        return s
+    off = np.abs((at[straight] - s + 0.5 * total) % total - 0.5 * total)
+    return float(at[straight[np.argmin(off)]])
 
 
 def _reversed(ring: Ring) -> Ring:
@@ -143,17 +165,18 @@ class _Builder:
             chain = chain[:-1]
         rings = [self.tree.rings[i] for i in chain]
         cuts: list[float] = []
-        point = anchor
         tangent = host_tangent
-        for k, ring in enumerate(rings):
+        for k, (ring, point) in enumerate(zip(rings, self.cut_line(chain, anchor))):
             s, _ = _closest_s(ring, point)
             if tangent is not None and ring.length > 0 and np.dot(_tangent(ring, s, self.w), tangent) < 0:
                 ring = _reversed(ring)
                 s = ring.length - s
             rings[k] = ring
             cuts.append(s)
-            point = _point_at(np.vstack([ring.points, ring.points[:1]]), ring.cumlen, s)
             tangent = _tangent(ring, s, self.w)
+        seam = len(rings) == 1 and host_tangent is None  # a lone ring's own seam: no link crosses its cut
+        if seam:
+            cuts[0] = _seam(rings[0], cuts[0], self.w)
         dots = [r.length < DOT_RING * self.w for r in rings]
         # children hosted by the innermost ring (branches), root siblings by ring 0
         hosted: dict[int, list[int]] = {}
@@ -162,7 +185,7 @@ class _Builder:
             hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
         if siblings:
             hosted.setdefault(0, []).extend(siblings)
-        if len(rings) == 1 and not hosted and rings[0].rise < max(thin_rise(rings[0].floor, self.w), THIN_LOOP * self.w):
+        if len(rings) == 1 and not hosted and lone_thin_loop(rings[0], self.w):
             # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
             # as the region (fit_beads), instead of two sides printed over each other
             return loop_centre_line(rings[0].points)
@@ -178,13 +201,34 @@ class _Builder:
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
-            g = float(np.clip(ring.length / CUT_SHARE, CUT_RANGE[0] * self.w, CUT_RANGE[1] * self.w)) if n >= 3 else self.gap
+            if seam:  # the walk stops a bead short of its start, the round caps touching
+                g = self.w
+            else:
+                g = float(np.clip(ring.length / CUT_SHARE, CUT_RANGE[0] * self.w, CUT_RANGE[1] * self.w)) if n >= 3 else self.gap
             if k % 2 == 0:
                 start, end, direction = s - g / 2, s + g / 2, -1
             else:
                 start, end, direction = s + g / 2, s - g / 2, +1
             arcs.append(self._ring_walk(ring, start, end, direction, hosted.get(k, []), s))
         return np.vstack(arcs)
+
+    def cut_line(self, chain: list[int], anchor: np.ndarray) -> list[np.ndarray]:
+        """Cut point of every ring of ``chain`` (outermost first): the innermost ring's point nearest
+        to ``anchor``, then outwards each ring's point nearest to the cut of the ring inside it.
+
+        Every point of an inner ring lies about a width from the ring around it (the boundary
+        distance grows by one width from one ring to the next, at most one width per width walked),
+        but not the converse: an outer ring's point may lie far from a small or off-centre inner
+        ring. Propagated outwards, the cuts line up on one cut line (Zhao et al. 2016) and the links
+        of the spiral across it stay about a width long wherever the anchor lies; propagated
+        inwards from the anchor, a link could cross the whole region over the passes in between."""
+        points: list[np.ndarray] = []
+        point = anchor
+        for i in reversed(chain):
+            ring = self.tree.rings[i]
+            point = _point_at(np.vstack([ring.points, ring.points[:1]]), ring.cumlen, _closest_s(ring, point)[0])
+            points.append(point)
+        return points[::-1]
 
     def _separate(self, ring_id: int) -> None:
         self.failed += 1
@@ -202,7 +246,8 @@ class _Builder:
         placed: list[tuple[float, int]] = []  # (offset along the walk, child)
         shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
         for child in children:
-            s_child, dist = _closest_s(ring, self._nearest_point(child, ring))
+            # where the child's cut line meets the host (its outermost cut, next to the host)
+            s_child, dist = _closest_s(ring, self.cut_line(self.chain_from(child), self._nearest_point(child, ring))[0])
             offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
             taken = [o for o, _ in placed]
             ok_pos = None
