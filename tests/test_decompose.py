@@ -44,7 +44,7 @@ def test_y_solid_decomposes_into_a_standing_stem_and_two_arms():
     solid = y_solid()
     mesh = to_trimesh(solid)
     up = np.array([0.0, 0.0, 1.0])
-    assert risky_area(mesh, Plane(up, 0.0), np.radians(45), platform=True) > 100.0  # not printable along +z
+    assert risky_area(mesh, Plane(up, 0.0), np.radians(45)) > 100.0  # not printable along +z
     dec = decompose(mesh)
     parts = dec.parts
     assert len(parts) == 3

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from curvslice.decompose.constraints import faces_up, sections_intersect
 from curvslice.decompose.parts import Plane, centroid, cross_section, plane_frame, split, to_trimesh, union
-from curvslice.decompose.risky import PLATFORM_CONTACT_MM, base_face_mask, lowest_plane, risky_area, risky_mask
+from curvslice.decompose.risky import PLATFORM_CONTACT_MM, base_face_mask, lowest_plane, risky_area, risky_faces
 from curvslice.decompose.sequence import Sequence, fibonacci_sphere
 from curvslice.decompose.shape_analysis import CoarseDecomposition
 
@@ -79,7 +79,7 @@ class Settings:
 
 
 def part_risk(piece: Piece, alpha_max: float) -> float:
-    return risky_area(to_trimesh(piece.solid), piece.base, alpha_max, platform=piece.parent is None)
+    return risky_area(to_trimesh(piece.solid), piece.base, alpha_max)
 
 
 def _subtree(seq: Sequence, j: int) -> set[int]:
@@ -192,7 +192,7 @@ def rank_cuts(piece: Piece, root_direction: np.ndarray, s: Settings) -> list[tup
     n = mesh.face_normals[face]
     w = mesh.area / s.samples
     d = piece.base.normal
-    lower_risk = w * (risky_mask(n, d, s.alpha_max) & ~base_face_mask(mesh, piece.base, piece.parent is None)[face])
+    lower_risk = w * risky_faces(mesh, piece.base, s.alpha_max)[face]
     K = fibonacci_sphere(s.normals, hemisphere=True) @ plane_frame(d, np.zeros(3))[:3, :3].T
     K = K[[faces_up(k, root_direction) for k in K]]
     if len(K) == 0:

@@ -2,7 +2,8 @@
 
 - the parts' union equals the model (``solid.stl``) within 0.1 % of its volume, and the parts do
   not overlap (their volumes add up to the union's);
-- each part's risky area (Eq. 2.1, base face excluded) recomputed from its mesh equals the reported
+- each part's risky area (Eq. 2.1, faces within the first layer above the base plane excluded,
+  ``first_layer_mm`` of parts.json) recomputed from its mesh equals the reported
   one, and whether every part is support-free;
 - Constraint I: the base faces (faces of a part on its base plane) of two parts never cross on a
   stretch of the planes' common line — found by cutting each base face's triangles with the other
@@ -73,6 +74,7 @@ def checks(outdir: Path) -> list[Check] | None:
         return None
     spec = json.loads((outdir / "parts.json").read_text())
     alpha = np.radians(spec["alpha_max_deg"])
+    first_layer = float(spec.get("first_layer_mm", ROOT_CONTACT_MM))
     root_dir = np.asarray(spec["root_direction"], float)
     parts = spec["parts"]
     meshes = [trimesh.load(outdir / p["file"], force="mesh") for p in parts]
@@ -93,7 +95,8 @@ def checks(outdir: Path) -> list[Check] | None:
     risky, mismatch = [], []
     for k, (p, m) in enumerate(zip(parts, meshes)):
         n, c = np.asarray(p["base_plane"]["normal"], float), float(p["base_plane"]["offset_mm"])
-        bad = (m.face_normals @ n + np.sin(alpha) < 0) & ~_base_faces(m, n, c, k == 0)
+        first = np.all(np.abs((m.vertices @ n - c)[m.faces]) <= first_layer, axis=1)
+        bad = (m.face_normals @ n + np.sin(alpha) < 0) & ~first
         area = float(m.area_faces[bad].sum())
         risky.append(area)
         if abs(area - p["risky_area_mm2"]) > 1e-3 * max(1.0, area):
