@@ -140,3 +140,34 @@ def print_decomposition(folder: Path, voxel: float = 1.0, layer_height: float | 
     report.update(sections, stages=["layers", "toolpaths"])
     (folder / "report.json").write_text(json.dumps(report, indent=1))
     return sections
+
+
+def plan_robot(folder: Path, robot: str, quiet: bool = True) -> dict:
+    """The robot stage of `curvslice slice` (:func:`curvslice.pipeline.run_robot`) on a printed
+    decomposition folder: one joint trajectory and one program for the whole sequence, each layer
+    checked against the platform and the layers printed before it (all parts in the platform frame
+    E, where the workcell's platform top is z = 0). Writes ``joints.csv``, ``workcell.json`` and the
+    controller programs, adds the ``robot`` section and stage to ``report.json`` and returns it."""
+    from curvslice.pipeline import (Context, FieldResult, LayersResult, Settings, ToolpathsResult, load_toolpaths,
+                                    run_robot, save_robot)
+    from curvslice.platform import disc_platform
+    from curvslice.working_surfaces import load_layers
+
+    folder = Path(folder)
+    report = json.loads((folder / "report.json").read_text())
+    spec = json.loads((folder / "parts.json").read_text())
+    root = spec["parts"][0]
+    solid = trimesh.load(folder / "solid.stl", force="mesh")
+    solid.apply_transform(np.linalg.inv(plane_frame(np.asarray(root["build_direction"], float),
+                                                    np.asarray(root["base_centre_mm"], float))))
+    settings = Settings(robot=robot, voxel=float(report["layers"]["voxel_mm"]))
+    tp = load_toolpaths(folder, report["toolpaths"])
+    results = {"field": FieldResult(solid, np.asarray(disc_platform(solid).vertices, float), None, None, None, {}),
+               "layers": LayersResult(load_layers(folder), report["layers"]),
+               "toolpaths": ToolpathsResult(tp, ToolpathSettings(path_width=report["toolpaths"]["path_width_mm"]), {})}
+    robot_result = run_robot(Context(solid, settings, results, quiet=quiet))
+    save_robot(robot_result, folder, settings, results)
+    report["robot"] = robot_result.report
+    report["stages"] = [*report.get("stages", []), "robot"]
+    (folder / "report.json").write_text(json.dumps(report, indent=1))
+    return robot_result.report
