@@ -229,6 +229,9 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                        s: Settings) -> list[Cut]:
     """Greedy refinement by optimal cutting planes (Eq. 2.2) under Constraints I and II."""
     known: dict[int, tuple[manifold3d.Manifold, float]] = {}
+    # parts with no valid plane stay so while their solid is unchanged: a new part only adds a base
+    # section for Constraint I to keep apart from (the bunny's root, unimprovable, was re-searched every round)
+    stuck: dict[int, manifold3d.Manifold] = {}
     while len(pieces) < s.max_parts:
         for i, p in pieces.items():
             if i not in known or known[i][0] is not p.solid:
@@ -237,6 +240,8 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
         queue = sorted((i for i in risk if risk[i] > s.risky_tolerance), key=lambda i: -risk[i])[: s.top_k]
         best = None
         for g in queue:
+            if stuck.get(g) is pieces[g].solid:
+                continue
             piece = pieces[g]
             base_area = 0.99 * _base_area(piece.solid, piece.base, piece.parent is None)
             valid = 0
@@ -262,6 +267,7 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                     break
             if best is not None:
                 break  # the riskiest part that can be improved is refined first
+            stuck[g] = piece.solid
         if best is None:
             break
         _, g, plane, below, top, above, section = best
