@@ -240,3 +240,24 @@ def test_printed_parts_are_planar_along_their_directions_and_verify_catches_a_ti
     result = {c.name: c for c in verify_outdir(tmp_path)}
     assert not result["nozzle along each part's direction"].passed
     assert json.loads((tmp_path / "report.json").read_text())["stages"] == ["layers", "toolpaths"]
+
+
+def test_platform_clearance_of_a_cylinder_and_a_cone_extruder():
+    """A cylinder of radius r from a to b above the tip dips r·sinθ - a·cosθ below it at tilt θ; a cone
+    with its apex on the tip never dips before θ reaches 90° - its half-angle."""
+    from dataclasses import replace
+
+    from curvslice.decompose.constraints import platform_clearance
+    from curvslice.workcell import Body, load_workcell, pose_matrix
+
+    cell = load_workcell("ur3")
+    r, a, b = 6.0, 2.0, 12.0
+    cylinder = replace(cell, extruder=(Body("body", "cylinder", (r, b - a), pose_matrix([0, 0, (a + b) / 2], [0, 0, 0])),))
+    for deg in (0, 10, 30, 60, 85):
+        t = np.radians(deg)
+        exact = max(0.0, r * np.sin(t) - a * np.cos(t))
+        assert exact - 1e-9 <= platform_clearance(cylinder, t) <= exact + 0.01 * r  # the rim is circumscribed
+    half = np.degrees(np.arctan(4.0 / 5.0))  # radius 4 at 5 mm: apex at the tip (cone apex at +length/2, turned over)
+    cone = replace(cell, extruder=(Body("nozzle", "cone", (4.0, 5.0), pose_matrix([0, 0, 2.5], [180, 0, 0])),))
+    assert platform_clearance(cone, np.radians(90 - half - 1)) == 0.0
+    assert platform_clearance(cone, np.radians(90 - half + 10)) > 0.5

@@ -20,6 +20,7 @@ from curvslice.decompose.risky import ALPHA_MAX_DEG
 from curvslice.errors import CurvsliceError
 from curvslice.outdir import atomic_folder
 from curvslice.solid import load_solid
+from curvslice.workcell import load_workcell
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -35,6 +36,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--analysis-tolerance", type=float, default=0.3,
                    help="simplification tolerance of the shape-analysis copy, mm (parts are cut from the full mesh)")
     p.add_argument("--max-parts", type=int, default=Settings.max_parts, help="stop the fine decomposition here")
+    p.add_argument("--workcell", default="ur3",
+                   help="workcell (name or JSON) whose extruder every part must clear the platform with at its tilt; "
+                        "'none' for Constraint II alone (default ur3, the thesis's cell)")
     p.add_argument("--print", action="store_true", dest="print_parts",
                    help="also slice every part in planar layers along its build direction and plan the tool-paths "
                         "of the whole sequence (layers/, toolpaths.npz, toolpaths.gcode)")
@@ -54,12 +58,16 @@ def run(args: argparse.Namespace) -> int:
         if value is not None and not (np.isfinite(value) and 0 < value <= 50):
             raise CurvsliceError(f"--{name.replace('_', '-')} must be in (0, 50] mm (got {value})")
     solid, _ = load_solid(args.model)
-    dec = decompose(solid, args.alpha_max, args.root, args.analysis_tolerance, Settings(max_parts=args.max_parts))
+    cell = None if args.workcell == "none" else args.workcell
+    if cell is not None:
+        load_workcell(cell)  # a bad name fails before any work
+    dec = decompose(solid, args.alpha_max, args.root, args.analysis_tolerance,
+                    Settings(max_parts=args.max_parts, workcell=cell))
     with atomic_folder(args.out, force=args.force, protect=(args.model,)) as tmp:
         report = write_decomposition(dec, tmp, str(args.model), solid)
         if args.print_parts:
             report.update(print_decomposition(tmp, args.voxel, args.layer_height, args.path_width,
-                                              meshes=[p.mesh for p in dec.parts]))
+                                              meshes=[p.mesh for p in dec.parts], workcell=cell or "ur3"))
     print(f"{report['parts']} parts in {report['timings_s']['total']:.1f} s; risky area per part (mm²): "
           + ", ".join(f"{a:.1f}" for a in report["risky_area_mm2"]))
     print(f"Constraint I violations: {report['constraint_one_violations'] or 'none'}; "

@@ -52,6 +52,7 @@ class Decomposition:
     timings: dict[str, float] = field(default_factory=dict)
     analysis_faces: int = 0
     model_volume: float = 0.0
+    workcell: str | None = None  # whose extruder every part clears the platform with (Settings.workcell)
 
     def constraint_one_violations(self) -> list[tuple[int, int]]:
         pairs = constraint_one([p.base for p in self.parts], [p.section for p in self.parts])
@@ -110,7 +111,7 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         prev = t[n]
     timings["total"] = t["replay"] - t["start"]
     return Decomposition(parts, seq.root_direction, s.alpha_max, len(coarse.areas), coarse.k, timings, len(simple.faces),
-                         float(full.volume()))
+                         float(full.volume()), s.workcell)
 
 
 def _print_order(root: int, parent: dict[int, int | None]) -> list[int]:
@@ -152,6 +153,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "stage": "decompose",
         "source": source,
         "alpha_max_deg": float(np.degrees(dec.alpha_max)),
+        "platform_clearance_workcell": dec.workcell,
         "root_direction": dec.root_direction.tolist(),
         "parts": len(parts),
         "coarse_patches": dec.coarse_patches,

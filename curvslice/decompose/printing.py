@@ -25,10 +25,12 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from curvslice.decompose.constraints import platform_clearance
 from curvslice.decompose.parts import plane_frame
 from curvslice.toolpaths import ToolpathSettings, Toolpaths, plan_toolpaths, save_toolpaths
 from curvslice.voxelize import voxelize
 from curvslice.working_surfaces import extract_working_surfaces, write_layers
+from curvslice.workcell import load_workcell
 
 
 @dataclass
@@ -95,13 +97,16 @@ def in_platform_frame(prints: list[PartPrint], settings: ToolpathSettings) -> tu
 
 
 def print_decomposition(folder: Path, voxel: float = 1.0, layer_height: float | None = None,
-                        path_width: float | None = None, meshes: list[trimesh.Trimesh] | None = None) -> dict:
+                        path_width: float | None = None, meshes: list[trimesh.Trimesh] | None = None,
+                        workcell: str = "ur3") -> dict:
     """Plan every part of a ``curvslice decompose`` folder (``parts.json``) and write ``layers/``,
     ``toolpaths.npz`` (plus ``part`` per sample) and ``toolpaths.gcode`` for the whole sequence in
     the platform frame E; adds the sections ``layers`` and ``toolpaths`` (and those stages) to the
     folder's ``report.json`` and returns them. ``meshes`` are
     the parts in printing order as cut (closed by construction); by default they are read from the
-    folder's STL files, where a part touching itself may come back with non-manifold edges."""
+    folder's STL files, where a part touching itself may come back with non-manifold edges. Each
+    part's lowest sample over the platform is reported beside the :func:`platform_clearance` its
+    tilt needs in ``workcell`` (the thesis's UR3 cell by default)."""
     folder = Path(folder)
     spec = json.loads((folder / "parts.json").read_text())
     h = layer_height or voxel
@@ -123,16 +128,25 @@ def print_decomposition(folder: Path, voxel: float = 1.0, layer_height: float | 
     with np.load(folder / "toolpaths.npz") as z:
         arrays = {k: z[k] for k in z.files}
     np.savez_compressed(folder / "toolpaths.npz", **arrays, part=part)
-    per_part = [{"part": pp.sequence, "layers": len(pp.layers), "samples": len(pp.toolpaths.positions),
-                 "pieces": int(len(np.unique(pp.toolpaths.path))), "layers_s": round(pp.seconds["layers"], 3),
-                 "toolpaths_s": round(pp.seconds["toolpaths"], 3)} for pp in prints]
+    cell = load_workcell(workcell)
+    per_part = []
+    for pp in prints:
+        tilt = float(np.arccos(np.clip(pp.pose[2, 2], -1.0, 1.0)))
+        lowest = tp.positions[part == pp.sequence, 2]
+        per_part.append({"part": pp.sequence, "layers": len(pp.layers), "samples": len(pp.toolpaths.positions),
+                         "pieces": int(len(np.unique(pp.toolpaths.path))), "tilt_deg": round(np.degrees(tilt), 2),
+                         "lowest_sample_mm": round(float(lowest.min()), 3) if len(lowest) else None,
+                         "clearance_mm": round(platform_clearance(cell, tilt), 3),
+                         "layers_s": round(pp.seconds["layers"], 3), "toolpaths_s": round(pp.seconds["toolpaths"], 3)})
+    blocked = [q["part"] for q in per_part if q["lowest_sample_mm"] is not None and q["lowest_sample_mm"] < q["clearance_mm"]]
     sections = {
         "layers": {"count": len(layers), "layer_height_mm": h, "voxel_mm": voxel, "planar": True,
                    "per_part": [q["layers"] for q in per_part],
                    "timings_s": {"layers": round(sum(q["layers_s"] for q in per_part), 3)}},
         "toolpaths": {"path_width_mm": settings.path_width, "samples": len(tp.positions),
                       "pieces": int(len(np.unique(tp.path))), "filament_mm": round(float(tp.extrusion.sum()), 3),
-                      "per_part": per_part, "per_layer": tp.layers,
+                      "per_part": per_part, "per_layer": tp.layers, "workcell": cell.name,
+                      "platform_clearance_short": blocked,
                       "spirals_s": round(tp.seconds["spirals"], 3), "orientation_s": round(tp.seconds["orientation"], 3),
                       "timings_s": {"toolpaths": round(sum(q["toolpaths_s"] for q in per_part), 3)}},
     }
