@@ -44,7 +44,7 @@ def test_y_solid_decomposes_into_a_standing_stem_and_two_arms():
     solid = y_solid()
     mesh = to_trimesh(solid)
     up = np.array([0.0, 0.0, 1.0])
-    assert risky_area(mesh, Plane(up, 0.0), np.radians(45), platform=True) > 100.0  # not printable along +z
+    assert risky_area(mesh, Plane(up, 0.0), np.radians(45)) > 100.0  # not printable along +z
     dec = decompose(mesh)
     parts = dec.parts
     assert len(parts) == 3
@@ -157,3 +157,107 @@ def test_cli_workcell_place_writes_a_loadable_workcell(tmp_path):
     report = __import__("json").loads(out.with_suffix(".report.json").read_text())
     np.testing.assert_allclose(cell.nozzle[:3, 3], report["nozzle_mm"], atol=1e-6)
     assert report["frames_in_box"] > 0
+
+
+def test_first_layer_above_any_base_plane_is_not_risky():
+    """An upside-down frustum (a cone widening upwards 60° off vertical) printed along +z hangs all
+    round, except within the first layer above its base: from the platform and from a cut alike."""
+    from curvslice.decompose.risky import FIRST_LAYER_MM
+
+    r0, height = 5.0, 6.0
+    cone = m3.Manifold.cylinder(height, r0, r0 + height * np.tan(np.radians(60)), 128).refine_to_length(0.25)
+    mesh = to_trimesh(cone)
+    up = np.array([0.0, 0.0, 1.0])
+
+    def flank(z0: float, z1: float) -> float:  # lateral area of the frustum between two heights
+        r = lambda z: r0 + z * np.tan(np.radians(60))  # noqa: E731
+        return np.pi * (r(z0) + r(z1)) * (z1 - z0) / np.cos(np.radians(60))
+
+    for offset in (0.0, -2.0):  # standing on the platform; the same frustum cut 2 mm lower is a child's base
+        base = Plane(up, offset)
+        expected = flank(max(FIRST_LAYER_MM + offset, 0.0), height)
+        bottom = np.pi * r0**2 if offset < -FIRST_LAYER_MM else 0.0  # a base 2 mm under the bottom face: it hangs
+        assert risky_area(mesh, base, np.radians(45)) == pytest.approx(expected + bottom, rel=0.01)
+
+
+def _two_part_folder(folder):
+    """A 16 x 16 x 12 block cut by a plane tilted 30° about y: the root below stands on the platform
+    (+z), the top is printed along the plane's normal; written as a `curvslice decompose` folder."""
+    import json
+
+    from curvslice.decompose.parts import part_pose, plane_frame, split
+
+    block = m3.Manifold.cube((16, 16, 12)).translate((-8, -8, 0))
+    n = np.array([np.sin(np.radians(30)), 0.0, np.cos(np.radians(30))])
+    cut = Plane(n, float(n @ np.array([0.0, 0.0, 6.0])))
+    below, above = split(block, cut)
+    meshes = [to_trimesh(below), to_trimesh(above[0])]
+    bases = [Plane(np.array([0.0, 0.0, 1.0]), 0.0), cut]
+    centres = [np.zeros(3), (cut.frame() @ np.r_[np.asarray(cross_section(above[0], cut).centroid.coords[0]), 0, 1])[:3]]
+    root_frame = plane_frame(bases[0].normal, centres[0])
+    parts = []
+    for k, (m, b, c) in enumerate(zip(meshes, bases, centres)):
+        m.export(folder / f"part_{k:02d}.stl")
+        parts.append({"file": f"part_{k:02d}.stl", "sequence": k, "parent": None if k == 0 else 0,
+                      "base_plane": {"normal": b.normal.tolist(), "offset_mm": b.offset},
+                      "build_direction": b.normal.tolist(), "base_centre_mm": c.tolist(), "risky_area_mm2": 0.0,
+                      "T_P_E": part_pose(b, c, root_frame).tolist()})
+    to_trimesh(block).export(folder / "solid.stl")
+    (folder / "parts.json").write_text(json.dumps({"alpha_max_deg": 45.0, "first_layer_mm": 0.5,
+                                                   "root_direction": [0, 0, 1], "parts": parts}))
+    (folder / "report.json").write_text(json.dumps({"stage": "decompose"}))
+    return meshes, n
+
+
+def test_printed_parts_are_planar_along_their_directions_and_verify_catches_a_tilted_nozzle(tmp_path):
+    """`print_decomposition`: every layer a plane of its part's frame inside the part, the nozzle along
+    the part's direction, layers and samples in sequence order, one G-code for both parts; verify
+    re-checks it from the files, and fails when one part's nozzle axis is tilted."""
+    import json
+
+    from curvslice.decompose.printing import print_decomposition
+    from curvslice.verify import verify_outdir
+
+    meshes, n = _two_part_folder(tmp_path)
+    sections = print_decomposition(tmp_path, voxel=2.0, meshes=meshes)
+    with np.load(tmp_path / "toolpaths.npz") as z:
+        tp = {k: z[k] for k in z.files}
+    assert sections["toolpaths"]["samples"] == len(tp["positions"]) > 0
+    assert np.all(np.diff(tp["part"]) >= 0) and set(tp["part"].tolist()) == {0, 1}
+    np.testing.assert_allclose(tp["normals"][tp["part"] == 0], np.tile([0, 0, 1.0], ((tp["part"] == 0).sum(), 1)), atol=1e-9)
+    np.testing.assert_allclose(tp["normals"][tp["part"] == 1] @ n, 1.0, atol=1e-9)
+    # the platform frame E is the root's: the top part's samples sit on planes above the cut, every layer height
+    # (2 mm) but the last, lowered into the part where the part ends (the working-surface stage's fallback)
+    levels = np.unique(np.round(tp["positions"][tp["part"] == 1] @ n - 6.0 * n[2], 6))
+    np.testing.assert_allclose(levels[:-1], 2.0 * np.arange(1, len(levels)), atol=1e-6)
+    assert levels[-2] < levels[-1] < (meshes[1].vertices @ n).max() - 6.0 * n[2]
+    result = {c.name: c for c in verify_outdir(tmp_path)}
+    for name in ("planar layers", "layers inside their parts", "nozzle along each part's direction",
+                 "union equals model", "gcode matches npz", "orientation validity"):
+        assert result[name].passed, (name, result[name].value, result[name].detail)
+    tp["normals"][tp["part"] == 1] = np.array([0.0, 0.0, 1.0])  # the top part printed along the root's z
+    np.savez_compressed(tmp_path / "toolpaths.npz", **tp)
+    result = {c.name: c for c in verify_outdir(tmp_path)}
+    assert not result["nozzle along each part's direction"].passed
+    assert json.loads((tmp_path / "report.json").read_text())["stages"] == ["layers", "toolpaths"]
+
+
+def test_platform_clearance_of_a_cylinder_and_a_cone_extruder():
+    """A cylinder of radius r from a to b above the tip dips r·sinθ - a·cosθ below it at tilt θ; a cone
+    with its apex on the tip never dips before θ reaches 90° - its half-angle."""
+    from dataclasses import replace
+
+    from curvslice.decompose.constraints import platform_clearance
+    from curvslice.workcell import Body, load_workcell, pose_matrix
+
+    cell = load_workcell("ur3")
+    r, a, b = 6.0, 2.0, 12.0
+    cylinder = replace(cell, extruder=(Body("body", "cylinder", (r, b - a), pose_matrix([0, 0, (a + b) / 2], [0, 0, 0])),))
+    for deg in (0, 10, 30, 60, 85):
+        t = np.radians(deg)
+        exact = max(0.0, r * np.sin(t) - a * np.cos(t))
+        assert exact - 1e-9 <= platform_clearance(cylinder, t) <= exact + 0.01 * r  # the rim is circumscribed
+    half = np.degrees(np.arctan(4.0 / 5.0))  # radius 4 at 5 mm: apex at the tip (cone apex at +length/2, turned over)
+    cone = replace(cell, extruder=(Body("nozzle", "cone", (4.0, 5.0), pose_matrix([0, 0, 2.5], [180, 0, 0])),))
+    assert platform_clearance(cone, np.radians(90 - half - 1)) == 0.0
+    assert platform_clearance(cone, np.radians(90 - half + 10)) > 0.5

@@ -1,7 +1,9 @@
 """``curvslice decompose MODEL --out DIR``: RoboFDM planar multi-directional decomposition (thesis ch. 2).
 
 Writes one mesh per part (``part_XX.stl``, in printing order), ``parts.json`` (each part's base
-plane, build direction, parent, T_P^E of Eq. 2.3, risky area) and ``report.json``.
+plane, build direction, parent, T_P^E of Eq. 2.3, risky area) and ``report.json``. With ``--print``
+also the planar layers of every part (``layers/``) and the tool-paths of the whole sequence in the
+platform frame (``toolpaths.npz``, ``toolpaths.gcode``), by the working-surface and tool-path stages.
 """
 
 from __future__ import annotations
@@ -9,12 +11,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+import numpy as np
+
 from curvslice.decompose import decompose, write_decomposition
 from curvslice.decompose.fine_tuning import Settings
+from curvslice.decompose.printing import print_decomposition
 from curvslice.decompose.risky import ALPHA_MAX_DEG
 from curvslice.errors import CurvsliceError
 from curvslice.outdir import atomic_folder
 from curvslice.solid import load_solid
+from curvslice.workcell import load_workcell
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -30,6 +36,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--analysis-tolerance", type=float, default=0.3,
                    help="simplification tolerance of the shape-analysis copy, mm (parts are cut from the full mesh)")
     p.add_argument("--max-parts", type=int, default=Settings.max_parts, help="stop the fine decomposition here")
+    p.add_argument("--workcell", default="ur3",
+                   help="workcell (name or JSON) whose extruder every part must clear the platform with at its tilt; "
+                        "'none' for Constraint II alone (default ur3, the thesis's cell)")
+    p.add_argument("--print", action="store_true", dest="print_parts",
+                   help="also slice every part in planar layers along its build direction and plan the tool-paths "
+                        "of the whole sequence (layers/, toolpaths.npz, toolpaths.gcode)")
+    p.add_argument("--voxel", type=float, default=1.0, help="with --print: voxel width of the parts' layers, mm")
+    p.add_argument("--layer-height", type=float, default=None, help="with --print: layer height, mm (default: --voxel)")
+    p.add_argument("--path-width", type=float, default=None,
+                   help="with --print: path width, mm (default: voxel / 0.8, as `curvslice slice`)")
     p.add_argument("--force", action="store_true", help="replace an existing output folder")
     p.set_defaults(run=run)
 
@@ -37,13 +53,28 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if not 0 < args.alpha_max < 90:
         raise CurvsliceError(f"--alpha-max must be in (0, 90) degrees (got {args.alpha_max})")
+    for name in ("voxel", "layer_height", "path_width"):
+        value = getattr(args, name)
+        if value is not None and not (np.isfinite(value) and 0 < value <= 50):
+            raise CurvsliceError(f"--{name.replace('_', '-')} must be in (0, 50] mm (got {value})")
     solid, _ = load_solid(args.model)
-    dec = decompose(solid, args.alpha_max, args.root, args.analysis_tolerance, Settings(max_parts=args.max_parts))
+    cell = None if args.workcell == "none" else args.workcell
+    if cell is not None:
+        load_workcell(cell)  # a bad name fails before any work
+    dec = decompose(solid, args.alpha_max, args.root, args.analysis_tolerance,
+                    Settings(max_parts=args.max_parts, workcell=cell))
     with atomic_folder(args.out, force=args.force, protect=(args.model,)) as tmp:
         report = write_decomposition(dec, tmp, str(args.model), solid)
+        if args.print_parts:
+            report.update(print_decomposition(tmp, args.voxel, args.layer_height, args.path_width,
+                                              meshes=[p.mesh for p in dec.parts], workcell=cell or "ur3"))
     print(f"{report['parts']} parts in {report['timings_s']['total']:.1f} s; risky area per part (mm²): "
           + ", ".join(f"{a:.1f}" for a in report["risky_area_mm2"]))
     print(f"Constraint I violations: {report['constraint_one_violations'] or 'none'}; "
           f"Constraint II violations: {report['constraint_two_violations'] or 'none'}")
+    if args.print_parts:
+        tp = report["toolpaths"]
+        print(f"printed: {report['layers']['count']} planar layers, {tp['samples']} samples, {tp['pieces']} pieces "
+              f"({report['layers']['timings_s']['layers']:.1f} s layers, {tp['timings_s']['toolpaths']:.1f} s tool-paths)")
     print(f"wrote {args.out}")
     return 0

@@ -23,7 +23,7 @@ from curvslice.decompose.fine_tuning import (Settings, coarse_parts, fine_decomp
                                               replay)
 from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_frame, to_manifold, to_trimesh
 from curvslice.decompose.preview import plot_parts
-from curvslice.decompose.risky import PLATFORM_CONTACT_MM, lowest_plane, risky_area
+from curvslice.decompose.risky import FIRST_LAYER_MM, PLATFORM_CONTACT_MM, lowest_plane, risky_area
 from curvslice.decompose.sequence import plan_sequence
 from curvslice.decompose.shape_analysis import coarse_decomposition
 
@@ -52,6 +52,7 @@ class Decomposition:
     timings: dict[str, float] = field(default_factory=dict)
     analysis_faces: int = 0
     model_volume: float = 0.0
+    workcell: str | None = None  # whose extruder every part clears the platform with (Settings.workcell)
 
     def constraint_one_violations(self) -> list[tuple[int, int]]:
         pairs = constraint_one([p.base for p in self.parts], [p.section for p in self.parts])
@@ -97,7 +98,7 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         root = i == seq.root
         sec = cross_section(sol, base, PLATFORM_CONTACT_MM if root else 1e-3)
         centre = base.frame() @ np.r_[np.asarray(sec.centroid.coords[0]) if not sec.is_empty else np.zeros(2), 0, 1]
-        parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max, root), centre[:3],
+        parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max), centre[:3],
                           part_risk(pieces[i], s.alpha_max)))
     t["replay"] = time.perf_counter()
     order = _print_order(seq.root, {p.index: p.parent for p in parts})
@@ -110,7 +111,7 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         prev = t[n]
     timings["total"] = t["replay"] - t["start"]
     return Decomposition(parts, seq.root_direction, s.alpha_max, len(coarse.areas), coarse.k, timings, len(simple.faces),
-                         float(full.volume()))
+                         float(full.volume()), s.workcell)
 
 
 def _print_order(root: int, parent: dict[int, int | None]) -> list[int]:
@@ -152,6 +153,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "stage": "decompose",
         "source": source,
         "alpha_max_deg": float(np.degrees(dec.alpha_max)),
+        "platform_clearance_workcell": dec.workcell,
         "root_direction": dec.root_direction.tolist(),
         "parts": len(parts),
         "coarse_patches": dec.coarse_patches,
@@ -166,7 +168,8 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "timings_s": dec.timings,
     }
     (folder / "parts.json").write_text(json.dumps({"root_direction": dec.root_direction.tolist(),
-                                                   "alpha_max_deg": report["alpha_max_deg"], "parts": parts}, indent=1))
+                                                   "alpha_max_deg": report["alpha_max_deg"],
+                                                   "first_layer_mm": FIRST_LAYER_MM, "parts": parts}, indent=1))
     (folder / "report.json").write_text(json.dumps(report, indent=1))
     plot_parts(dec.parts, folder / "parts.png", f"{Path(source).stem}: {len(parts)} parts, sequence 0..{len(parts) - 1}")
     return report

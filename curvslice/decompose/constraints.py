@@ -7,6 +7,10 @@
 - Constraint II: every base plane faces up, read here in the platform frame: its normal makes a
   positive dot product with the root's build direction (the platform's up), so the nozzle never
   reaches under the platform.
+- Platform clearance (not in the thesis; its §2.6 names Constraint II as a collision heuristic that
+  falls short): a part printed with its direction tilted by θ from the platform's normal must keep
+  its lowest point :func:`platform_clearance` (θ) above the platform, or the extruder -- the bodies
+  of the workcell, the thesis's UR3 cell by default -- hits the platform while printing it.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import shapely
 from shapely import affinity
 
 from curvslice.decompose.parts import Plane
+from curvslice.workcell import Body, Workcell
 
 
 def _line_intervals(region: shapely.MultiPolygon, frame: np.ndarray, point: np.ndarray, direction: np.ndarray,
@@ -66,3 +71,49 @@ def constraint_one(planes: list[Plane], regions: list[shapely.MultiPolygon], tol
 def faces_up(normal: np.ndarray, root_direction: np.ndarray, margin: float = 1e-6) -> bool:
     """Constraint II for one base plane."""
     return float(np.asarray(normal) @ np.asarray(root_direction)) > margin
+
+
+def _hull_points(body: Body, sections: int = 64) -> np.ndarray:
+    """Points whose convex hull holds the workcell body (box corners; a cylinder's two rims; a cone's
+    base rim and apex at +length/2, :mod:`curvslice.workcell`; rims circumscribed), in the body's
+    parent frame."""
+    if body.kind == "box":
+        local = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) * np.asarray(body.dims) / 2
+    else:
+        r, h = body.dims[0] / np.cos(np.pi / sections), body.dims[1]
+        a = 2 * np.pi * np.arange(sections) / sections
+        rim = np.c_[r * np.cos(a), r * np.sin(a), np.full(sections, -h / 2)]
+        local = np.vstack([rim, rim + [0, 0, h]] if body.kind == "cylinder" else [rim, [[0.0, 0.0, h / 2]]])
+    return local @ body.pose[:3, :3].T + body.pose[:3, 3]
+
+
+def platform_clearance(cell: Workcell, tilt: float, turns: int = 72) -> float:
+    """Height (mm) above the platform top that the nozzle tip needs to print with its axis tilted by
+    ``tilt`` (rad) from the platform's normal: the depth of the extruder's lowest point (vertices of
+    the workcell's extruder bodies in the nozzle frame N) below the tip, at the best of ``turns``
+    turns about the nozzle axis (the motion stage may turn the deposition frame about it, Eq. 4.3).
+    Constraint II only keeps base planes facing up; a part tilted far from the platform's normal that
+    reaches down to the platform cannot be printed without the extruder hitting the platform
+    (thesis §2.6, limitation 5)."""
+    pts = np.vstack([_hull_points(b) for b in cell.extruder])
+    phi = 2 * np.pi * np.arange(turns) / turns
+    # height of each point over the tip with N's z tilted by `tilt` towards the horizontal direction at `phi`
+    side = pts[:, 0][None, :] * np.cos(phi)[:, None] + pts[:, 1][None, :] * np.sin(phi)[:, None]
+    lowest = (pts[:, 2][None, :] * np.cos(tilt) - side * np.sin(tilt)).min(axis=1)
+    return float(max(0.0, -lowest.max()))
+
+
+def clearance_table(cell: Workcell, step_deg: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`platform_clearance` at tilts 0..90° every ``step_deg`` (radians, mm), for :func:`np.interp`."""
+    tilts = np.radians(np.arange(0.0, 90.0 + step_deg / 2, step_deg))
+    return tilts, np.array([platform_clearance(cell, t) for t in tilts])
+
+
+def clears_platform(vertices: np.ndarray, normal: np.ndarray, root_direction: np.ndarray, platform: float,
+                    table: tuple[np.ndarray, np.ndarray] | None) -> bool:
+    """Platform clearance of a part (its ``vertices``) printed along ``normal``; ``platform`` is the
+    platform top's offset along ``root_direction``; True without a ``table``."""
+    if table is None or not len(vertices):
+        return True
+    tilt = float(np.arccos(np.clip(np.asarray(normal) @ np.asarray(root_direction), -1.0, 1.0)))
+    return float((np.asarray(vertices) @ root_direction).min() - platform) >= float(np.interp(tilt, *table)) - 1e-6

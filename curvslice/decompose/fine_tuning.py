@@ -27,9 +27,9 @@ import shapely
 import trimesh
 from scipy.spatial import cKDTree
 
-from curvslice.decompose.constraints import faces_up, sections_intersect
+from curvslice.decompose.constraints import clearance_table, clears_platform, faces_up, sections_intersect
 from curvslice.decompose.parts import Plane, centroid, cross_section, plane_frame, split, to_trimesh, union
-from curvslice.decompose.risky import PLATFORM_CONTACT_MM, base_face_mask, lowest_plane, risky_area, risky_mask
+from curvslice.decompose.risky import PLATFORM_CONTACT_MM, base_face_mask, lowest_plane, risky_area, risky_faces
 from curvslice.decompose.sequence import Sequence, fibonacci_sphere
 from curvslice.decompose.shape_analysis import CoarseDecomposition
 
@@ -76,10 +76,22 @@ class Settings:
     valid_candidates: int = 4  # valid planes compared by their exact gain
     max_parts: int = 16
     seed: int = 0
+    #: workcell whose extruder each part must clear the platform with (None: Constraint II alone)
+    workcell: str | None = "ur3"
+
+    def clearance(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The platform-clearance table of :attr:`workcell` (:func:`clearance_table`)."""
+        from curvslice.workcell import load_workcell
+
+        return None if self.workcell is None else clearance_table(load_workcell(self.workcell))
+
+
+def _vertices(solid: manifold3d.Manifold) -> np.ndarray:
+    return np.asarray(solid.to_mesh().vert_properties)[:, :3]
 
 
 def part_risk(piece: Piece, alpha_max: float) -> float:
-    return risky_area(to_trimesh(piece.solid), piece.base, alpha_max, platform=piece.parent is None)
+    return risky_area(to_trimesh(piece.solid), piece.base, alpha_max)
 
 
 def _subtree(seq: Sequence, j: int) -> set[int]:
@@ -112,6 +124,7 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
     centres = mesh.triangles_center
     root_base = lowest_plane(mesh.vertices, seq.root_direction)
     pieces = {seq.root: Piece(solid, root_base, None, cross_section(solid, root_base, PLATFORM_CONTACT_MM))}
+    table = s.clearance()
     owner = {p: seq.root for p in range(len(coarse.areas))}
     cuts: list[Cut] = []
     for j in seq.order[1:]:
@@ -139,6 +152,8 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
                 continue
             kept = union(keep)
             km = to_trimesh(kept)
+            if not clears_platform(km.vertices, plane.normal, seq.root_direction, root_base.offset, table):
+                continue
             cap = float(km.area_faces[base_face_mask(km, plane)].sum())
             ref_area = cap if ref_area is None else ref_area
             if cap > (1 + s.max_section_growth) * ref_area:
@@ -167,12 +182,15 @@ def _base_area(solid: manifold3d.Manifold, base: Plane, platform: bool) -> float
 
 def merge_regions(pieces: dict[int, Piece], cuts: list[Cut], order: list[int], s: Settings) -> list[Cut]:
     """Region merging (§2.4.3): fold a child into its parent when that is no riskier."""
+    table = s.clearance()
+    root = next(q for q in pieces.values() if q.parent is None)
     for j in reversed(order):
         if j not in pieces or pieces[j].parent is None:
             continue
         p = pieces[j].parent
         merged = union([pieces[p].solid, pieces[j].solid])
-        if len(merged.decompose()) != 1:
+        if len(merged.decompose()) != 1 or not clears_platform(_vertices(merged), pieces[p].base.normal,
+                                                                root.base.normal, root.base.offset, table):
             continue
         cand = Piece(merged, pieces[p].base, pieces[p].parent, pieces[p].section)
         if part_risk(cand, s.alpha_max) <= part_risk(pieces[p], s.alpha_max) + part_risk(pieces[j], s.alpha_max) + 1e-6:
@@ -192,7 +210,7 @@ def rank_cuts(piece: Piece, root_direction: np.ndarray, s: Settings) -> list[tup
     n = mesh.face_normals[face]
     w = mesh.area / s.samples
     d = piece.base.normal
-    lower_risk = w * (risky_mask(n, d, s.alpha_max) & ~base_face_mask(mesh, piece.base, piece.parent is None)[face])
+    lower_risk = w * risky_faces(mesh, piece.base, s.alpha_max)[face]
     K = fibonacci_sphere(s.normals, hemisphere=True) @ plane_frame(d, np.zeros(3))[:3, :3].T
     K = K[[faces_up(k, root_direction) for k in K]]
     if len(K) == 0:
@@ -229,6 +247,11 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                        s: Settings) -> list[Cut]:
     """Greedy refinement by optimal cutting planes (Eq. 2.2) under Constraints I and II."""
     known: dict[int, tuple[manifold3d.Manifold, float]] = {}
+    # parts with no valid plane stay so while their solid is unchanged: a new part only adds a base
+    # section for Constraint I to keep apart from (the bunny's root, unimprovable, was re-searched every round)
+    stuck: dict[int, manifold3d.Manifold] = {}
+    table = s.clearance()
+    platform = next(q for q in pieces.values() if q.parent is None).base.offset
     while len(pieces) < s.max_parts:
         for i, p in pieces.items():
             if i not in known or known[i][0] is not p.solid:
@@ -237,6 +260,8 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
         queue = sorted((i for i in risk if risk[i] > s.risky_tolerance), key=lambda i: -risk[i])[: s.top_k]
         best = None
         for g in queue:
+            if stuck.get(g) is pieces[g].solid:
+                continue
             piece = pieces[g]
             base_area = 0.99 * _base_area(piece.solid, piece.base, piece.parent is None)
             valid = 0
@@ -246,6 +271,8 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                     continue
                 top = union(above)
                 if top.volume() < s.min_part_volume_fraction * total_volume or _base_area(below, piece.base, piece.parent is None) < base_area:
+                    continue
+                if not clears_platform(_vertices(top), plane.normal, root_direction, platform, table):
                     continue
                 gain = risk[g] - part_risk(Piece(below, piece.base, piece.parent), s.alpha_max) \
                     - risky_area(to_trimesh(top), plane, s.alpha_max)
@@ -262,6 +289,7 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                     break
             if best is not None:
                 break  # the riskiest part that can be improved is refined first
+            stuck[g] = piece.solid
         if best is None:
             break
         _, g, plane, below, top, above, section = best

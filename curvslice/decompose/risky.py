@@ -1,8 +1,12 @@
 """Risky faces and risky area R(·) of a part printed along a direction (thesis Eq. 2.1, §2.4.3).
 
 A face with unit normal ``n`` is *safe* for build direction ``d`` when ``n·d + sin(α_max) ≥ 0``,
-otherwise *risky*. The faces lying on the part's base plane (normal ``-d``, on the plane) rest on
-the material or platform below and are excluded.
+otherwise *risky*. §2.4.3 excludes the base plane: what lies on it rests on the platform (root) or
+on the parent's cut face. Read with a printer's first layer, every face within
+:data:`FIRST_LAYER_MM` above the base plane is deposited onto that base and is excluded too, for
+the root and the other parts alike (a scanned bottom is rarely flat to the micrometre, and a
+cut meets the surface at any angle: the sliver of surface a cut leaves just above its plane is
+part of the child's first layer, not an overhang).
 
 ``α_max`` default: the thesis borrows the self-support angle from its ref. [26] without stating a
 value; 45° is the usual FDM rule (a wall may lean up to 45° beyond vertical), so
@@ -19,9 +23,11 @@ from curvslice.decompose.parts import Plane
 ALPHA_MAX_DEG = 45.0
 #: Faces within this distance (mm) of the base plane and facing down along it are the base face.
 BASE_TOLERANCE_MM = 1e-2
-#: The root stands on the platform: its faces within this distance (mm, about one layer) of its
-#: lowest point are the contact, whatever their normal (a scanned model rarely has a flat bottom).
-PLATFORM_CONTACT_MM = 0.5
+#: A part's first layer (mm, about one layer of a 1 mm nozzle, §2.3.1): its faces this close to the
+#: base plane are deposited onto the base (platform or parent), whatever their normal.
+FIRST_LAYER_MM = 0.5
+#: The root stands on the platform: its faces within its first layer are the platform contact.
+PLATFORM_CONTACT_MM = FIRST_LAYER_MM
 
 
 def risky_mask(normals: np.ndarray, direction: np.ndarray, alpha_max: float) -> np.ndarray:
@@ -31,20 +37,28 @@ def risky_mask(normals: np.ndarray, direction: np.ndarray, alpha_max: float) -> 
 
 def base_face_mask(mesh: trimesh.Trimesh, base: Plane, platform: bool = False) -> np.ndarray:
     """Faces lying on the base plane with their normal opposite to the build direction; for the
-    root (``platform``) the faces within :data:`PLATFORM_CONTACT_MM` of it."""
+    root (``platform``) its first layer, the platform contact."""
+    if platform:
+        return first_layer_mask(mesh, base)
     height = mesh.vertices @ base.normal - base.offset
-    on_plane = np.all(np.abs(height[mesh.faces]) <= (PLATFORM_CONTACT_MM if platform else BASE_TOLERANCE_MM), axis=1)
-    return on_plane if platform else on_plane & (mesh.face_normals @ base.normal < -0.999)
+    on_plane = np.all(np.abs(height[mesh.faces]) <= BASE_TOLERANCE_MM, axis=1)
+    return on_plane & (mesh.face_normals @ base.normal < -0.999)
 
 
-def risky_faces(mesh: trimesh.Trimesh, base: Plane, alpha_max: float, platform: bool = False) -> np.ndarray:
-    """Risky faces of a part printed along ``base.normal`` from ``base`` (its base face excluded)."""
-    return risky_mask(mesh.face_normals, base.normal, alpha_max) & ~base_face_mask(mesh, base, platform)
+def first_layer_mask(mesh: trimesh.Trimesh, base: Plane) -> np.ndarray:
+    """Faces lying within the first layer, :data:`FIRST_LAYER_MM` of the base plane."""
+    height = mesh.vertices @ base.normal - base.offset
+    return np.all(np.abs(height[mesh.faces]) <= FIRST_LAYER_MM, axis=1)
 
 
-def risky_area(mesh: trimesh.Trimesh, base: Plane, alpha_max: float, platform: bool = False) -> float:
+def risky_faces(mesh: trimesh.Trimesh, base: Plane, alpha_max: float) -> np.ndarray:
+    """Risky faces of a part printed along ``base.normal`` from ``base`` (its first layer excluded)."""
+    return risky_mask(mesh.face_normals, base.normal, alpha_max) & ~first_layer_mask(mesh, base)
+
+
+def risky_area(mesh: trimesh.Trimesh, base: Plane, alpha_max: float) -> float:
     """R(M_i) of §2.4.3 in mm²."""
-    return float(mesh.area_faces[risky_faces(mesh, base, alpha_max, platform)].sum())
+    return float(mesh.area_faces[risky_faces(mesh, base, alpha_max)].sum())
 
 
 def lowest_plane(vertices: np.ndarray, direction: np.ndarray) -> Plane:

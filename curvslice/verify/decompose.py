@@ -2,13 +2,18 @@
 
 - the parts' union equals the model (``solid.stl``) within 0.1 % of its volume, and the parts do
   not overlap (their volumes add up to the union's);
-- each part's risky area (Eq. 2.1, base face excluded) recomputed from its mesh equals the reported
+- each part's risky area (Eq. 2.1, faces within the first layer above the base plane excluded,
+  ``first_layer_mm`` of parts.json) recomputed from its mesh equals the reported
   one, and whether every part is support-free;
 - Constraint I: the base faces (faces of a part on its base plane) of two parts never cross on a
   stretch of the planes' common line — found by cutting each base face's triangles with the other
   plane (trimesh), not by the polygon code that made the decomposition; sections that merely end
   on each other's plane (cuts meeting at a junction) touch without crossing;
-- Constraint II: every base plane faces up along the root's build direction.
+- Constraint II: every base plane faces up along the root's build direction;
+- when the parts were printed (``layers/``, ``toolpaths.npz`` with ``part``): every layer is planar,
+  parallel to its part's base plane at a multiple of the layer height above it and inside its part,
+  the layers of each part follow each other in the sequence, and every sample's nozzle axis is its
+  part's build direction (coverage, overlap and the G-code are re-checked by ``verify.toolpaths``).
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ import manifold3d
 import numpy as np
 import trimesh
 
+from curvslice.decompose.parts import plane_frame  # the frame convention of parts.json's T_P_E
 from curvslice.verify import Check
 
 STAGE = "decompose"
@@ -73,6 +79,7 @@ def checks(outdir: Path) -> list[Check] | None:
         return None
     spec = json.loads((outdir / "parts.json").read_text())
     alpha = np.radians(spec["alpha_max_deg"])
+    first_layer = float(spec.get("first_layer_mm", ROOT_CONTACT_MM))
     root_dir = np.asarray(spec["root_direction"], float)
     parts = spec["parts"]
     meshes = [trimesh.load(outdir / p["file"], force="mesh") for p in parts]
@@ -93,7 +100,8 @@ def checks(outdir: Path) -> list[Check] | None:
     risky, mismatch = [], []
     for k, (p, m) in enumerate(zip(parts, meshes)):
         n, c = np.asarray(p["base_plane"]["normal"], float), float(p["base_plane"]["offset_mm"])
-        bad = (m.face_normals @ n + np.sin(alpha) < 0) & ~_base_faces(m, n, c, k == 0)
+        first = np.all(np.abs((m.vertices @ n - c)[m.faces]) <= first_layer, axis=1)
+        bad = (m.face_normals @ n + np.sin(alpha) < 0) & ~first
         area = float(m.area_faces[bad].sum())
         risky.append(area)
         if abs(area - p["risky_area_mm2"]) > 1e-3 * max(1.0, area):
@@ -122,4 +130,49 @@ def checks(outdir: Path) -> list[Check] | None:
     down = [k for k, (n, _) in enumerate(planes[1:], start=1) if n @ root_dir <= 0]
     results.append(Check(STAGE, "Constraint II (base planes face up)", not down, f"{len(down)} parts",
                          str(down) if down else ""))
+    if (outdir / "toolpaths.npz").exists() and (outdir / "layers").is_dir():
+        results += _printed(outdir, spec, meshes)
     return results
+
+
+def _printed(outdir: Path, spec: dict, meshes: list[trimesh.Trimesh]) -> list[Check]:
+    report = json.loads((outdir / "report.json").read_text())
+    h = float(report["layers"]["layer_height_mm"])
+    counts = report["layers"]["per_part"]
+    files = sorted((outdir / "layers").glob("layer_*.ply"))
+    root = spec["parts"][0]
+    # E in model coordinates: z = the root's build direction, origin = its base centre; T_P^E maps P into E
+    E = plane_frame(np.asarray(root["build_direction"], float), np.asarray(root["base_centre_mm"], float))
+    owner = np.repeat(np.arange(len(counts)), counts)
+    off_plane, heights, outside = [], [], []
+    for number, f in enumerate(files, start=1):
+        k = int(owner[number - 1]) if number <= len(owner) else -1
+        layer = trimesh.load(f, force="mesh", process=False)
+        if k < 0 or not len(layer.vertices):
+            continue
+        P = np.asarray(spec["parts"][k]["T_P_E"], float)
+        z = (layer.vertices - P[:3, 3]) @ P[:3, 2]  # height above the base plane, along the build direction
+        off_plane.append(float(np.ptp(z)))
+        heights.append((k, float(z.mean())))
+        model = (layer.vertices @ E[:3, :3].T) + E[:3, 3]  # E -> model coordinates
+        d = trimesh.proximity.signed_distance(meshes[k], model[:: max(1, len(model) // 200)])
+        outside.append(float(-d.min()))  # signed_distance is positive inside
+    # each part's layers rise from its base plane by at most one layer height at a time
+    steps = [z - (heights[i - 1][1] if i and heights[i - 1][0] == k else 0.0) for i, (k, z) in enumerate(heights)]
+    out = [Check(STAGE, "planar layers", len(files) == sum(counts) and max(off_plane, default=0) <= 1e-3
+                 and 0 < min(steps, default=h) and max(steps, default=0) <= h + 1e-3,
+                 f"{len(files)} layers, flat within {max(off_plane, default=0):.1e} mm",
+                 f"rising {min(steps, default=0):.2f}-{max(steps, default=0):.2f} mm a layer (height {h:g} mm) from each "
+                 f"base plane; report counts {sum(counts)}")]
+    out.append(Check(STAGE, "layers inside their parts", max(outside, default=0) <= 0.05,
+                     f"max {max(outside, default=0):.3f} mm outside", "sampled vertices, signed distance to the part"))
+    with np.load(outdir / "toolpaths.npz") as z:
+        part, normals, layer = z["part"], z["normals"], z["layer"]
+    axes = np.array([np.asarray(p["T_P_E"], float)[:3, 2] for p in spec["parts"]])
+    angle = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", normals, axes[part]), -1, 1)))
+    in_order = bool(np.all(np.diff(part) >= 0)) and bool(np.all(owner[layer - 1] == part))
+    out.append(Check(STAGE, "nozzle along each part's direction", len(angle) > 0 and angle.max() <= 1e-3 and in_order,
+                     f"max {angle.max() if len(angle) else 0:.1e}°", "parts printed in sequence order, each on its own layers"
+                     if in_order else "samples out of sequence order or on another part's layer"))
+    return out
+

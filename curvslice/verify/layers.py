@@ -293,8 +293,8 @@ def _near_own_voxels(mesh: trimesh.Trimesh, voxels: np.ndarray, origin: np.ndarr
 def checks(outdir: Path) -> list[Check] | None:
     folder = Path(outdir) / "layers"
     files = sorted(folder.glob("layer_*.ply"))
-    if not folder.is_dir():
-        return None
+    if not folder.is_dir() or (Path(outdir) / "parts.json").exists():
+        return None  # no layers, or a RoboFDM folder's planar layers (re-checked by verify.decompose)
     results: list[Check] = []
     solid_path, field_path = Path(outdir) / "solid.stl", Path(outdir) / "field.npz"
     if not solid_path.exists() or not field_path.exists():
