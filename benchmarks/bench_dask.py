@@ -42,7 +42,7 @@ def per_layer_costs(layers, settings) -> dict:
     t0 = time.process_time()
     cleaned = [tp_plan.clean_surface(m) for m in layers]
     supports = [tp_plan.layer_support(s) for s in cleaned]
-    seam = tp_plan.seam_line(cleaned)
+    seam = tp_plan.seam_point(cleaned)
     client = time.process_time() - t0
     prep, fold, orient, ends = [], [], [], []
     wall = time.perf_counter()
@@ -54,7 +54,7 @@ def per_layer_costs(layers, settings) -> dict:
         if settings.start_rule == "chain":
             f = tp_plan._fold_layer(p, previous, k, cleaned, settings)
         else:
-            f = tp_plan._fold_layer(p, None, k, cleaned, settings, start=tp_plan.seam_start(cleaned[k], seam),
+            f = tp_plan._fold_layer(p, None, k, cleaned, settings, start=seam,
                                     backward=k % 2 == 1)
         t2 = time.process_time()
         arrays, _, _, _ = tp_plan._orient_layer(k, f, cleaned, supports, settings)

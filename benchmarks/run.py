@@ -62,6 +62,7 @@ STAGE_LABELS = {
     "toolpaths": "tool-paths (total)",
     "spirals": "· Fermat spirals (incl. geodesics)",
     "orientation": "· orientations (Eq. 3.3)",
+    "toolpaths_workers": "tool-paths on a local Dask cluster (--workers)",
     "ik": "IK ladder (p rotations)",
     "graph_search": "ladder-graph search",
     "motion": "robot stage (graph + jerk + fcl)",
@@ -200,11 +201,14 @@ def robot_subset(toolpaths, target: int) -> np.ndarray:
 
 def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, robot: str | None = "ur5",
              robot_waypoints: int = ROBOT_WAYPOINTS, downstream: bool = True, repeat: int = 3,
-             budget: float = 20.0, timeout: float | None = None, quiet: bool = False) -> dict[str, object]:
+             budget: float = 20.0, timeout: float | None = None, quiet: bool = False,
+             workers: int | None = None) -> dict[str, object]:
     """All stages on one model at one voxel size, each timed alone through the pipeline's registry
     (:func:`curvslice.pipeline.stage`); returns the case's JSON record. The field stage runs once per
     growing method; its load / voxelize / peeling / growing times are recorded beside. A stage stopped at
-    ``timeout`` is recorded as such; the stages that need its result are then left out."""
+    ``timeout`` is recorded as such; the stages that need its result are then left out. ``workers``: the
+    tool-path stage is also timed on a local Dask cluster of that many processes, right after it ran
+    in-process (the 1 vs N row; the cluster's start-up is not timed)."""
     from curvslice.pipeline import Context, Settings, stage
 
     rec = Recorder(repeat=repeat, budget=budget, quiet=quiet, timeout=timeout)
@@ -229,14 +233,14 @@ def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, r
             c.results["field"] = field_
     if downstream and ctx is not None:
         try:
-            _downstream(rec, ctx, robot_waypoints, counts)
+            _downstream(rec, ctx, robot_waypoints, counts, workers)
         except StageTimeout:
             pass
-    return {"model": model.stem, "voxel_mm": voxel, "counts": counts,
+    return {"model": model.stem, "voxel_mm": voxel, "counts": counts, "workers": workers,
             "stages": {k: v.summary() for k, v in rec.stages.items()}}
 
 
-def _downstream(rec: Recorder, ctx, robot_waypoints: int, counts: dict[str, object]) -> None:
+def _downstream(rec: Recorder, ctx, robot_waypoints: int, counts: dict[str, object], workers: int | None = None) -> None:
     from curvslice.geodesic import boundary_distance
     from curvslice.pipeline import stage
     from curvslice.toolpaths import clean_surface
@@ -256,6 +260,8 @@ def _downstream(rec: Recorder, ctx, robot_waypoints: int, counts: dict[str, obje
         lambda r: {"toolpaths": r.report["timings_s"]["toolpaths"], "spirals": r.report["spirals_s"],
                    "orientation": r.report["orientation_s"]})
     tp = ctx.results["toolpaths"].toolpaths
+    if workers:
+        _toolpaths_on_workers(rec, layers, ctx.settings.toolpath_settings(), workers, tp)
     counts["toolpaths"] = {"samples": int(len(tp.positions)), "pieces": int(len(np.unique(tp.path))),
                            "layers_with_paths": int(len(np.unique(tp.layer)))}
     if ctx.settings.robot and len(tp.positions):
@@ -269,6 +275,21 @@ def _downstream(rec: Recorder, ctx, robot_waypoints: int, counts: dict[str, obje
                 if name in ctx.results:
                     stage(name).save(ctx.results[name], Path(tmp), ctx.settings, ctx.results)
         rec.run("export", export)
+
+
+def _toolpaths_on_workers(rec: Recorder, layers, settings, workers: int, reference) -> None:
+    """The tool-path planning on a local cluster of ``workers`` processes (started, and the library imported
+    on each, before the clock starts); its arrays must be the in-process ones."""
+    import importlib
+
+    from curvslice.executors import open_executor
+    from curvslice.toolpaths import plan_toolpaths
+
+    with open_executor(workers=workers) as ex:
+        ex.client.run(importlib.import_module, "curvslice.toolpaths.plan")
+        tp = rec.run("toolpaths_workers", lambda: plan_toolpaths(layers, settings, executor=ex))
+    if not np.array_equal(tp.positions, reference.positions):
+        raise CurvsliceError(f"tool-paths on {workers} workers differ from the in-process ones")
 
 
 def _robot(rec: Recorder, ctx, target: int, counts: dict) -> None:
@@ -383,7 +404,7 @@ def _model_path(name: str, quick: bool) -> Path:
 
 def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, methods: tuple[str, ...] = METHODS,
               robot: str | None = "ur5", models: tuple[str, ...] | None = None, sweep: bool = True,
-              timeout: float | None = None, quiet: bool = False,
+              timeout: float | None = None, quiet: bool = False, workers: int | None = 2,
               checkpoint: Callable[[dict[str, object]], None] | None = None) -> dict[str, object]:
     """Standard cases (+ the size sweep) → the JSON record written by :func:`write_outputs`;
     ``checkpoint(result)`` is called after every case with the record so far (``complete`` False)."""
@@ -398,6 +419,7 @@ def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, met
     out: dict[str, object] = {
         "suite": "quick" if quick else "full", "machine": machine(),
         "settings": {"repeat": repeat, "budget_s": budget, "timeout_s": timeout, "methods": list(methods), "robot": robot,
+                     "workers": workers,
                      "robot_waypoints": target, "standard": [list(c) for c in standard],
                      "sweep": {"model": sweep_model, "voxels_mm": list(sweep_sizes)} if sweep else None},
         "standard": [], "sweep": [], "complete": False,
@@ -413,7 +435,7 @@ def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, met
 
     for name, voxel in standard:
         done("standard", run_case(_model_path(name, quick), voxel, methods=methods, robot=robot, robot_waypoints=target,
-                                  repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
+                                  repeat=repeat, budget=budget, timeout=timeout, quiet=quiet, workers=workers))
     for voxel in sweep_sizes if sweep else ():
         done("sweep", run_case(_model_path(sweep_model, quick), voxel, methods=("pg-sp-gcfa",), robot=None,
                                repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
@@ -504,8 +526,9 @@ def markdown(result: dict[str, object]) -> str:
     lines += ["", "Rows starting with · are parts of the total above them (summed per-layer times the library "
               "reports); the robot rows use the first layers of the tool-paths, in print order, until they hold "
               f"at least {st['robot_waypoints']:,} waypoints (Table 4.2's WS1 has 2,545), p = 30 rotations, "
-              f"the shipped {st['robot']} workcell.", "",
-              "## Counts", "",
+              f"the shipped {st['robot']} workcell.", ""]
+    lines += workers_table(cases, m["nproc"])
+    lines += ["## Counts", "",
               "| case | voxels | " + " | ".join(f"{x} layers / missed" for x in st["methods"])
               + " | surfaces (empty) | tool-path samples / pieces | robot waypoints / segments |",
               "|---|---|" + "---|" * len(st["methods"]) + "---|---|---|"]
@@ -641,6 +664,22 @@ def markdown(result: dict[str, object]) -> str:
     return "\n".join(lines)
 
 
+def workers_table(cases: list[dict], nproc: int) -> list[str]:
+    """The 1 vs N workers section: the tool-path planning in-process and on a local cluster, same run."""
+    rows = [c for c in cases if _median(c, "toolpaths_workers") and _median(c, "toolpaths")]
+    if not rows:
+        return []
+    lines = ["## Tool-paths: 1 vs N workers", "",
+             f"The same planning in-process and on a local Dask cluster of N processes (`--workers N`), one after "
+             f"the other in this run ({nproc} cores; the load average above says how much of them the run had). "
+             "Arrays identical (checked). benchmarks/SCALING.md projects more workers from per-layer costs.", "",
+             "| case | workers | in-process s | on N workers s | speed-up |", "|---|---|---|---|---|"]
+    for c in rows:
+        one, many = _median(c, "toolpaths"), _median(c, "toolpaths_workers")
+        lines.append(f"| {_case_title(c)} | {c['workers']} | {_fmt(one)} | {_fmt(many)} | {one / many:.2f}× |")
+    return lines + [""]
+
+
 def sweep_exponent(sweep: list[dict], key: str) -> float | None:
     """Least-squares slope of log t against log voxels over the sweep (None below two sizes)."""
     pts = [(c["counts"]["voxels"], c["stages"][key]["median_s"]) for c in sweep if key in c["stages"]]
@@ -710,6 +749,8 @@ def add_arguments(p) -> None:
     p.add_argument("--models", nargs="+", help="only these standard models")
     p.add_argument("--robot", default="ur5", help="workcell for the robot stages; 'none' skips them")
     p.add_argument("--no-sweep", action="store_true", help="skip the size sweep")
+    p.add_argument("--workers", type=int, default=2, help="also time the tool-path stage of the standard models on a "
+                   "local Dask cluster of this many processes, beside the in-process run (0: skip)")
     p.add_argument("--quiet", action="store_true", help="no per-stage lines")
 
 
@@ -721,7 +762,7 @@ def execute(args) -> int:
     result = run_suite(quick=args.quick, repeat=args.repeat, budget=args.budget, methods=tuple(args.methods),
                        robot=None if str(args.robot).lower() == "none" else args.robot,
                        models=tuple(args.models) if args.models else None, sweep=not args.no_sweep,
-                       timeout=args.stage_timeout or None, quiet=args.quiet,
+                       timeout=args.stage_timeout or None, quiet=args.quiet, workers=args.workers or None,
                        checkpoint=lambda partial: write_outputs(partial, out))
     for path in write_outputs(result, out):
         print(f"wrote {path}")

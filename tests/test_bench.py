@@ -12,7 +12,7 @@ import pytest
 from matplotlib.image import imread
 
 from benchmarks.paper import AUTHORS_CPP, TABLE_3_1
-from benchmarks.run import DERIVED, STAGE_LABELS, Recorder, StageTimeout, markdown, robot_subset, sweep_exponent
+from benchmarks.run import DERIVED, STAGE_LABELS, Recorder, StageTimeout, _fmt, markdown, robot_subset, sweep_exponent
 from curvslice.cli import main
 
 
@@ -124,6 +124,10 @@ def test_quick_bench_writes_markdown_and_plot(quick_run):
         if key not in DERIVED:
             assert sum(line.startswith(f"| {label} |") for line in md.splitlines()) >= 2  # times + memory
     assert "Table 3.1" in md and "Table 4.2" in md and "Size sweep" in md and "Not yet implemented" in md
+    # the 1 vs N row: both timings of each case and their ratio (the arrays were checked equal by the run)
+    for case in result["standard"]:
+        one, two = case["stages"]["toolpaths"]["median_s"], case["stages"]["toolpaths_workers"]["median_s"]
+        assert case["workers"] == 2 and f"| {_fmt(one)} | {_fmt(two)} | {one / two:.2f}× |" in md
     img = imread(out / "results.png")[..., :3]
     assert img.shape[0] > 400 and img.shape[1] > 1000
     assert (img.std(axis=2) > 0.1).mean() > 0.01  # coloured bars and lines, not a blank canvas

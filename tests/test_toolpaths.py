@@ -204,8 +204,8 @@ def test_stage_output_passes_the_verifier_and_corruption_is_caught(tmp_path):
 def test_start_rules_start_each_layer_at_the_seam_or_where_the_previous_ended(rule):
     """Four discs 0.9 mm apart, each shifted 1.5 mm in x. ``seam``: every even layer starts, every odd
     one (printed backward) ends, within a spiral cut (≤ 3 widths) of its boundary point nearest the
-    seam line, x = the lowest x of all layers (-12 mm, layer 1), y = 0: the layer's own geometry, no other
-    layer's paths. ``chain``: every layer starts within a cut of where the previous one ended."""
+    seam point (-12, 0, 0): the lowest x of all layers (layer 1), mid y, on the platform; no other layer's
+    paths. ``chain``: every layer starts within a cut of where the previous one ended."""
     from curvslice.toolpaths import ToolpathSettings, plan_toolpaths
 
     base = polygon_mesh(sg.Point(0, 0).buffer(12.0, 128), 0.7)

@@ -29,7 +29,7 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9), one module per
 
 :mod:`~curvslice.toolpaths.plan` runs these per layer (:func:`layer_paths`) and over all layers
 with orientations and thickness (:func:`plan_toolpaths`; each layer's spiral starts nearest the
-part's seam line, or where the previous layer ended: :data:`START_RULES`), and writes the files
+part's seam point, or where the previous layer ended: :data:`START_RULES`), and writes the files
 (:func:`save_toolpaths`); every tuning constant is in :mod:`~curvslice.toolpaths.constants`.
 """
 
