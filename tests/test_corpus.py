@@ -25,7 +25,6 @@ SHARED_VOXEL = 2.5
 #: case -> the checks that failed when it joined the corpus (measured on issue 18's branch)
 KNOWN_FAILURES = {
     "sharp-tips": "tool-paths: coverage (flat layer 1: hairlines between passes), overlap near the tip",
-    "hole": "tool-paths: coverage (flat layer 1: hairlines between passes), overlap",
     "kitten": "tool-paths: overlap 8.0 % (layer 8)",
     "bunny": "tool-paths: overlap 8.2 % (layer 3)",
     "fertility": "tool-paths: coverage 88.5 % (layer 11), overlap 12.2 % (layer 14)",
