@@ -30,7 +30,6 @@ KNOWN_FAILURES = {
     "fertility": "tool-paths: coverage 88.5 % (layer 11), overlap 12.2 % (layer 14)",
     "rocker-arm": "tool-paths: coverage 90.3 % (layer 23), overlap 12.5 % (layer 10)",
     "cheburashka": "tool-paths: overlap 6.7 % (layer 14)",
-    "cow": "tool-paths: overlap 5.4 % (layer 29)",
     "homer": "tool-paths: coverage 94.1 % (layer 17), overlap 11.6 % (layer 18)",
 }
 
