@@ -117,8 +117,19 @@ def inside_cross_check(outdir: Path) -> dict[str, object]:
 _PERCENT = re.compile(r"(min|max) ([0-9.]+)% \(layer (\d+)\)")
 
 
-def run_case(case: Case, model: Path, workdir: Path, quiet: bool = False) -> dict[str, object]:
-    """Slice ``model`` to the tool-paths in ``workdir/<case>`` (replaced), verify it and return the record."""
+def run_case(case: Case, model: Path, workdir: Path, quiet: bool = False, reuse: bool = False) -> dict[str, object]:
+    """Slice ``model`` to the tool-paths in ``workdir/<case>`` (replaced), verify it and return the
+    record, also written to ``workdir/<case>.json``; with ``reuse``, a record already there is returned
+    instead (an interrupted table resumes where it stopped)."""
+    saved = workdir / f"{case.folder}.json"
+    if reuse and saved.is_file():
+        return json.loads(saved.read_text())
+    record = _run(case, model, workdir, quiet)
+    saved.write_text(json.dumps(record, indent=1) + "\n")
+    return record
+
+
+def _run(case: Case, model: Path, workdir: Path, quiet: bool) -> dict[str, object]:
     from curvslice.cli import main
     from curvslice.verify import verify_outdir
 

@@ -762,6 +762,8 @@ def add_arguments(p) -> None:
     p.add_argument("--no-verify-table", action="store_true", help="leave the verify table out of the full suite")
     p.add_argument("--scratch", help="folder for the verify table's slice folders (default: a temporary one)")
     p.add_argument("--verify-jobs", type=int, default=1, help="verify-table runs at once, each in its own process")
+    p.add_argument("--reuse", action="store_true", help="verify table: keep the runs already recorded in --scratch "
+                   "(resume an interrupted table)")
 
 
 def execute(args) -> int:
@@ -778,13 +780,14 @@ def execute(args) -> int:
                        checkpoint=lambda partial: write_outputs(partial, out))
     if not args.quick and not args.no_verify_table:
         result["verify"] = verify_table(tuple(args.models) if args.models else None, args.scratch, args.quiet,
-                                        args.verify_jobs)
+                                        args.verify_jobs, args.reuse)
     for path in write_outputs(result, out):
         print(f"wrote {path}")
     return 0
 
 
-def verify_table(models: tuple[str, ...] | None, scratch: str | None, quiet: bool, jobs: int = 1) -> dict[str, object]:
+def verify_table(models: tuple[str, ...] | None, scratch: str | None, quiet: bool, jobs: int = 1,
+                 reuse: bool = False) -> dict[str, object]:
     """The verify table's runs (:mod:`benchmarks.bench_verify`), ``jobs`` at once in their own processes,
     and what they were run on."""
     import multiprocessing
@@ -813,9 +816,10 @@ def verify_table(models: tuple[str, ...] | None, scratch: str | None, quiet: boo
         work = Path(scratch) if scratch else Path(tmp)
         if jobs > 1:
             with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
-                records = list(pool.map(bench_verify.run_case, todo, paths, [work] * len(todo), [quiet] * len(todo)))
+                records = list(pool.map(bench_verify.run_case, todo, paths, [work] * len(todo), [quiet] * len(todo),
+                                        [reuse] * len(todo)))
         else:
-            records = [bench_verify.run_case(case, path, work, quiet) for case, path in zip(todo, paths)]
+            records = [bench_verify.run_case(case, path, work, quiet, reuse) for case, path in zip(todo, paths)]
     header["load_end"] = ", ".join(f"{x:.1f}" for x in os.getloadavg())
     return {"header": header, "runs": records}
 
@@ -824,7 +828,8 @@ def execute_verify_table(args, out: Path) -> int:
     """``--verify-only``: the verify table alone, spliced into ``out``/RESULTS.md and results.json."""
     from benchmarks import bench_verify
 
-    table = verify_table(tuple(args.models) if args.models else None, args.scratch, args.quiet, args.verify_jobs)
+    table = verify_table(tuple(args.models) if args.models else None, args.scratch, args.quiet, args.verify_jobs,
+                         args.reuse)
     out.mkdir(parents=True, exist_ok=True)
     data = out / "results.json"
     result = json.loads(data.read_text()) if data.exists() else {}
