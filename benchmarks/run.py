@@ -658,6 +658,10 @@ def markdown(result: dict[str, object]) -> str:
             slope = sweep_exponent(sweep, k)
             lines.append(f"| {STAGE_LABELS[k]} | " + " | ".join(_cell(c["stages"][k]) for c in sweep)
                          + f" | {'–' if slope is None else f'{slope:.2f}'} |")
+    if result.get("verify"):
+        from benchmarks.bench_verify import markdown as verify_markdown
+
+        lines += ["", verify_markdown(result["verify"]["runs"], result["verify"]["header"])]
     lines += ["", "## Not yet implemented", ""]
     lines += [f"- {name}: {why}" for name, why in MISSING.items()] or ["- (nothing listed)"]
     lines += ["", "![time per stage; time against voxels](results.png)", ""]
@@ -752,6 +756,14 @@ def add_arguments(p) -> None:
     p.add_argument("--workers", type=int, default=2, help="also time the tool-path stage of the standard models on a "
                    "local Dask cluster of this many processes, beside the in-process run (0: skip)")
     p.add_argument("--quiet", action="store_true", help="no per-stage lines")
+    p.add_argument("--verify-only", action="store_true", help="only the verify table (benchmarks/bench_verify.py): "
+                   "slice every shared model at its standard settings and the kitten variants, verify, and replace "
+                   "that section of RESULTS.md (and the 'verify' rows of results.json) in --out")
+    p.add_argument("--no-verify-table", action="store_true", help="leave the verify table out of the full suite")
+    p.add_argument("--scratch", help="folder for the verify table's slice folders (default: a temporary one)")
+    p.add_argument("--verify-jobs", type=int, default=1, help="verify-table runs at once, each in its own process")
+    p.add_argument("--reuse", action="store_true", help="verify table: keep the runs already recorded in --scratch "
+                   "(resume an interrupted table)")
 
 
 def execute(args) -> int:
@@ -759,11 +771,70 @@ def execute(args) -> int:
     if args.repeat < 1 or args.budget < 0:
         raise CurvsliceError("--repeat must be at least 1 and --budget non-negative")
     out = Path(args.out) if args.out else (Path.cwd() / "bench_quick" if args.quick else REPO / "benchmarks")
+    if args.verify_only:
+        return execute_verify_table(args, out)
     result = run_suite(quick=args.quick, repeat=args.repeat, budget=args.budget, methods=tuple(args.methods),
                        robot=None if str(args.robot).lower() == "none" else args.robot,
                        models=tuple(args.models) if args.models else None, sweep=not args.no_sweep,
                        timeout=args.stage_timeout or None, quiet=args.quiet, workers=args.workers or None,
                        checkpoint=lambda partial: write_outputs(partial, out))
+    if not args.quick and not args.no_verify_table:
+        result["verify"] = verify_table(tuple(args.models) if args.models else None, args.scratch, args.quiet,
+                                        args.verify_jobs, args.reuse)
     for path in write_outputs(result, out):
         print(f"wrote {path}")
     return 0
+
+
+def verify_table(models: tuple[str, ...] | None, scratch: str | None, quiet: bool, jobs: int = 1,
+                 reuse: bool = False) -> dict[str, object]:
+    """The verify table's runs (:mod:`benchmarks.bench_verify`), ``jobs`` at once in their own processes,
+    and what they were run on."""
+    import multiprocessing
+    import subprocess
+    from concurrent.futures import ProcessPoolExecutor
+
+    from benchmarks import bench_verify
+
+    def git(*a: str) -> str:
+        try:
+            return subprocess.run(["git", *a], cwd=REPO, capture_output=True, text=True, check=True).stdout.strip()
+        except (OSError, subprocess.CalledProcessError):
+            return ""
+
+    commit = git("rev-parse", "--short", "HEAD") or "unknown"
+    if git("status", "--porcelain", "--", "curvslice"):
+        commit += " with uncommitted changes to curvslice/"
+    header = {"commit": commit, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+              "load": ", ".join(f"{x:.1f}" for x in os.getloadavg()),
+              "command": "curvslice bench --verify-only" + (f" --models {' '.join(models)}" if models else "")}
+    todo = bench_verify.cases(models)
+    paths = [models_dir() / f"{case.model}.stl" for case in todo]
+    if missing := [str(p) for p in paths if not p.is_file()]:
+        raise CurvsliceError(f"verify table: models {', '.join(missing)} not found; set CURVSLICE_MODELS")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(scratch) if scratch else Path(tmp)
+        if jobs > 1:
+            with ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+                records = list(pool.map(bench_verify.run_case, todo, paths, [work] * len(todo), [quiet] * len(todo),
+                                        [reuse] * len(todo)))
+        else:
+            records = [bench_verify.run_case(case, path, work, quiet, reuse) for case, path in zip(todo, paths)]
+    header["load_end"] = ", ".join(f"{x:.1f}" for x in os.getloadavg())
+    return {"header": header, "runs": records}
+
+
+def execute_verify_table(args, out: Path) -> int:
+    """``--verify-only``: the verify table alone, spliced into ``out``/RESULTS.md and results.json."""
+    from benchmarks import bench_verify
+
+    table = verify_table(tuple(args.models) if args.models else None, args.scratch, args.quiet, args.verify_jobs,
+                         args.reuse)
+    out.mkdir(parents=True, exist_ok=True)
+    data = out / "results.json"
+    result = json.loads(data.read_text()) if data.exists() else {}
+    result["verify"] = table
+    data.write_text(json.dumps(result, indent=1) + "\n")
+    bench_verify.splice(out / "RESULTS.md", bench_verify.markdown(table["runs"], table["header"]))
+    print(f"wrote {data} and the verify section of {out / 'RESULTS.md'}")
+    return 0 if all(r["passed"] for r in table["runs"]) else 1

@@ -137,3 +137,49 @@ def test_bench_refuses_unknown_models_in_one_line(capsys, tmp_path):
     assert main(["bench", "--quick", "--models", "bunny", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "choose from tee, arch" in err[0]
+
+
+def test_verify_table_locates_missed_voxels(tmp_path):
+    """benchmarks/bench_verify.missed_voxels on a hand-made field: a 2-voxel pocket inside the block and
+    one missed voxel in its bottom row are two pieces, the second on ∂H̄ and on the platform."""
+    from benchmarks.bench_verify import missed_voxels
+
+    occupied = np.zeros((8, 8, 8), bool)
+    occupied[1:7, 1:7, 0:6] = True
+    growing = np.where(occupied, 1 + np.arange(8)[None, None, :], 0)
+    growing[3, 3, 2:4] = 0  # enclosed pocket between layers 2 and 5
+    growing[1, 4, 0] = 0  # bottom row, on the side of the block
+    np.savez(tmp_path / "field.npz", occupied=occupied, growing=growing, origin=np.array([0.0, 0.0, 0.5]), voxel_size=1.0)
+    found = missed_voxels(tmp_path)
+    assert found["missed"] == 3 and found["voxels"] == 216 and found["layers"] == 6
+    pocket, corner = found["pieces"]
+    assert pocket == {"size": 2, "z_mm": [2.5, 3.5], "on_surface": 0, "on_platform": False, "layers_around": [2, 5]}
+    assert corner["size"] == 1 and corner["on_surface"] == 1 and corner["on_platform"] and corner["layers_around"] == [1, 2]
+
+
+def test_verify_section_is_spliced_into_results_md(tmp_path):
+    from benchmarks.bench_verify import SECTION, Case, cases, markdown, splice
+
+    run = {"model": "kitten", "voxel_mm": 0.8, "title": Case("kitten", 0.8).title, "slice_s": 1.0, "verify_s": 2.0,
+           "cross_check_s": 0.5, "passed": False,
+           "failed": [{"check": "toolpaths/overlap", "value": "max 6.1% (layer 18)", "detail": "", "layers": [8, 18]}],
+           "coverage": {"percent": 96.0, "layer": 4, "failing": []},
+           "overlap": {"percent": 6.1, "layer": 18, "failing": [8, 18]},
+           "field": {"voxels": 100, "layers": 9, "missed": 1, "pieces": [
+               {"size": 1, "z_mm": [0.4, 0.4], "on_surface": 1, "on_platform": True, "layers_around": [1, 1]}]},
+           "inside": {"vertices": 10, "disagree": 0, "layers": [], "max_w": 0.0}}
+    md = markdown([run], {"command": "curvslice bench --verify-only", "commit": "abc", "date": "d", "load": "1"})
+    row = next(line for line in md.splitlines() if line.startswith("| kitten @0.8 mm |"))
+    assert "| 1 (0) **above C++** |" in row and "| 0 / 2 |" in row and row.endswith("**FAIL** |")
+    assert "- kitten @0.8 mm: toolpaths/overlap max 6.1% (layer 18) — layers 8, 18" in md
+    target = tmp_path / "RESULTS.md"
+    target.write_text("# r\n\n## A\n\na\n\n## Not yet implemented\n\n- x\n")
+    splice(target, md)
+    once = target.read_text()
+    assert once.index("## A") < once.index(SECTION) < once.index("## Not yet implemented")
+    splice(target, md.replace("commit abc", "commit xyz"))  # a refresh replaces the section, nothing else
+    again = target.read_text()
+    assert again.count(SECTION) == 1 and "commit xyz" in again and "commit abc" not in again
+    assert again.replace("commit xyz", "commit abc") == once
+    assert [c.title for c in cases(("kitten",))] == ["kitten @0.8 mm", "kitten @1 mm", "kitten @1.6 mm", "kitten @2 mm",
+                                                     "kitten @0.8 mm, path 0.6 w", "kitten @0.8 mm, path 1.5 w"]

@@ -4,6 +4,8 @@ layer policy for jumps, missed voxels and slivers, and the independent verifier 
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 import trimesh
@@ -196,6 +198,49 @@ def test_winding_number_is_the_exact_inside_test_and_agrees_with_ray_parity(shar
     clear = np.abs(d) > 1e-3
     assert ((verify_layers.winding_numbers(solid, pts[clear]) > 0.5)
             == verify_layers.inside_by_ray_parity(solid, pts[clear])).all()
+
+
+def test_verifier_inside_test_agrees_with_the_signed_distance_on_every_layer_vertex(tmp_path):
+    """Issue 18: on the arch (a procedural solid whose opening is an overhang), the verifier's winding
+    number and the exact signed distance classify every layer vertex alike off ∂H -- the layers, and
+    the same vertices jittered by up to ±0.6 w so that many lie outside. Its "vertices inside H" check
+    counts violations only: three vertices pushed 1 w out of one layer are exactly "3 outside" on that
+    layer, while the untouched slice, with dozens of vertices on ∂H (winding number ½), has none."""
+    import shutil
+
+    from pathlib import Path
+
+    out = tmp_path / "arch"
+    model = Path(__file__).resolve().parents[1] / "models" / "arch.stl"
+    assert main(["slice", str(model), "--voxel", "2.0", "--out", str(out), "--quiet", "--stages", "layers", "--no-verify"]) == 0
+    solid = trimesh.load(out / "solid.stl", force="mesh")
+    w = 2.0
+    files = sorted((out / "layers").glob("layer_*.ply"))
+    verts = np.concatenate([trimesh.load(p, process=False, force="mesh").vertices for p in files])
+    rng = np.random.default_rng(5)
+    for pts in (verts, verts + rng.uniform(-0.6 * w, 0.6 * w, verts.shape)):
+        d, _ = SolidDistance.of(solid)(pts)
+        clear = np.abs(d) > verify_layers.TOLERANCE * w
+        wn = verify_layers.winding_numbers(solid, pts[clear])
+        assert ((wn > 0.5) == (d[clear] < 0)).all()
+        assert np.abs(wn - (d[clear] < 0)).max() < 0.1  # 0 or 1, not merely on the right side of ½
+    assert (d > 0.1 * w).sum() > 100  # the jittered set does probe the outside
+
+    check = next(c for c in verify_layers.checks(out) if c.name == "vertices inside H")
+    on_boundary = int(re.search(r"(\d+) more on ∂H", check.detail).group(1))
+    assert check.passed and check.value.startswith("0 outside") and on_boundary > 20
+    broken = tmp_path / "broken"
+    shutil.copytree(out, broken)
+    number = len(files) // 2
+    mesh = trimesh.load(files[number - 1], process=False, force="mesh")
+    ends = _boundary_vertices(mesh)
+    _, dist, tid = trimesh.proximity.closest_point(solid, mesh.vertices[ends])
+    on_solid = np.flatnonzero(dist < 1e-6)[:3]  # boundary vertices on ∂H (not at a jump of the field)
+    assert len(on_solid) == 3
+    mesh.vertices[ends[on_solid]] += w * solid.face_normals[tid[on_solid]]
+    mesh.export(broken / "layers" / files[number - 1].name)
+    check = next(c for c in verify_layers.checks(broken) if c.name == "vertices inside H")
+    assert not check.passed and check.value.startswith("3 outside") and check.layers == (number,)
 
 
 def test_a_wrong_sign_far_from_the_solid_does_not_change_the_trim():

@@ -38,18 +38,27 @@ ARTEFACTS: dict[str, tuple[str, ...]] = {
 
 @dataclass(frozen=True)
 class Check:
-    """One verified property: ``passed`` is False on a violation; ``value`` is the measured figure."""
+    """One verified property: ``passed`` is False on a violation; ``value`` is the measured figure;
+    ``layers`` the numbers of the layers that violate it, for a per-layer check (else empty)."""
 
     stage: str
     name: str
     passed: bool
     value: str
     detail: str = ""
+    layers: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:  # numpy bools and numbers from the checkers -> JSON-ready types
         object.__setattr__(self, "passed", bool(self.passed))
         object.__setattr__(self, "value", str(self.value))
         object.__setattr__(self, "detail", str(self.detail))
+        object.__setattr__(self, "layers", tuple(int(k) for k in self.layers))
+
+
+def layer_list(numbers, most: int = 12) -> str:
+    """``"3, 17, 97"`` (the first ``most`` layer numbers, then ``… (+n)``) for a check's detail."""
+    numbers = [int(k) for k in numbers]
+    return ", ".join(map(str, numbers[:most])) + (f", … (+{len(numbers) - most})" if len(numbers) > most else "")
 
 
 def _load_error(path: Path) -> str | None:

@@ -30,7 +30,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from curvslice.geodesic import boundary_edges
-from curvslice.verify import Check
+from curvslice.verify import Check, layer_list
 
 STAGE = "layers"
 #: Distance to ∂H (voxel widths) within which a vertex counts as on the boundary (issue 3).
@@ -322,7 +322,9 @@ def checks(outdir: Path) -> list[Check] | None:
     if not live:
         return results
 
+    numbers = [i + 1 for i, m in enumerate(layers) if len(m.faces)]
     verts = np.concatenate([m.vertices for m in live])
+    vert_layer = np.repeat(numbers, [len(m.vertices) for m in live])
     parity = inside_by_ray_parity(solid, verts)
     winding = winding_numbers(solid, verts) > 0.5
     doubt = ~parity | ~winding  # outside by either test: how far off ∂H?
@@ -332,12 +334,18 @@ def checks(outdir: Path) -> list[Check] | None:
     outside = ~winding & (off > TOLERANCE)
     disagree = int(np.sum((parity != winding) & (off > TOLERANCE)))
     worst = float(off[outside].max()) if outside.any() else 0.0
+    out_layers = np.unique(vert_layer[outside])
+    where = f" on layers {layer_list(out_layers)}" if len(out_layers) else ""
     results.append(Check(STAGE, "vertices inside H", not outside.any(), f"{int(outside.sum())} outside by > {TOLERANCE} w",
-                         f"of {len(verts)} vertices (max {worst:.3g} w; {int(np.sum(~winding & ~outside))} more on ∂H "
-                         f"within {TOLERANCE} w); ray parity differs off ∂H on {disagree}"
-                         + (" (∂H crosses itself: winding number 2 where parity is even)" if disagree else "")))
+                         f"of {len(verts)} vertices (max {worst:.3g} w{where}; "
+                         f"{int(np.sum(~winding & ~outside))} more on ∂H within {TOLERANCE} w); ray parity differs "
+                         f"off ∂H on {disagree}"
+                         + (" (∂H crosses itself: winding number 2 where parity is even)" if disagree else ""),
+                         out_layers))
 
-    bnd = np.concatenate([m.vertices[np.unique(boundary_edges(m.faces))] for m in live])
+    ends = [np.unique(boundary_edges(m.faces)) for m in live]
+    bnd = np.concatenate([m.vertices[e] for m, e in zip(live, ends)])
+    bnd_layer = np.repeat(numbers, [len(e) for e in ends])
     bd = trimesh.proximity.closest_point(solid, bnd)[1] / w if len(bnd) else np.zeros(0)
     interior = bnd[bd > TOLERANCE]
     near_jump = np.zeros(len(interior), bool)
@@ -348,14 +356,18 @@ def checks(outdir: Path) -> list[Check] | None:
             ijk = np.clip(base + d, 0, np.array(jumps.shape) - 1)
             near_jump |= jumps[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
     unexplained = int((~near_jump).sum())
+    stray = bd[bd > TOLERANCE][~near_jump]
+    stray_layers = np.unique(bnd_layer[bd > TOLERANCE][~near_jump])
     results.append(Check(STAGE, "boundary on ∂H or at a field jump", unexplained == 0,
                          f"{len(bnd) - len(interior)} on ∂H, {int(near_jump.sum())} at jumps, {unexplained} else",
-                         f"median distance of those on ∂H {np.median(bd[bd <= TOLERANCE]) if len(bd) else 0:.1g} w"))
+                         f"median distance of those on ∂H {np.median(bd[bd <= TOLERANCE]) if len(bd) else 0:.1g} w"
+                         + (f"; the others up to {stray.max():.3g} w off ∂H on layers {layer_list(stray_layers)}"
+                            if unexplained else ""), stray_layers))
 
     crossings = [crossing_pairs(layers[i], layers[i + 1]) for i in range(len(layers) - 1)]
     bad = [i + 1 for i, c in enumerate(crossings) if c]
     results.append(Check(STAGE, "consecutive layers do not cross", not bad, f"{sum(crossings)} pairs",
-                         f"between layers {bad[:10]} and the next" if bad else ""))
+                         f"between layers {bad[:10]} and the next" if bad else "", bad))
 
     near = {i + 1: _near_own_voxels(m, layer_voxels(growing, i + 1, step), origin, w)
             for i, m in enumerate(layers) if len(m.faces)}

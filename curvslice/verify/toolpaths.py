@@ -19,7 +19,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-from curvslice.verify import Check
+from curvslice.verify import Check, layer_list
 
 STAGE = "toolpaths"
 COVERAGE_MIN = 0.95
@@ -125,8 +125,8 @@ def checks(outdir: Path) -> list[Check] | None:
     extrusion = data["extrusion"]
     results: list[Check] = []
 
-    def add(name: str, passed: bool, value: str, detail: str = "") -> None:
-        results.append(Check(STAGE, name, bool(passed), value, detail))
+    def add(name: str, passed: bool, value: str, detail: str = "", layers: tuple[int, ...] = ()) -> None:
+        results.append(Check(STAGE, name, bool(passed), value, detail, layers))
 
     gcode_path = outdir / "toolpaths.gcode"
     header: dict[str, float] = {}
@@ -176,10 +176,11 @@ def checks(outdir: Path) -> list[Check] | None:
         cov = np.asarray(coverage)
         ovl = np.asarray(overlap)
         worst = int(np.argmin(cov)) + 1
+        low, high = np.flatnonzero(cov < COVERAGE_MIN) + 1, np.flatnonzero(ovl > OVERLAP_MAX) + 1
         add("coverage", bool(cov.min() >= COVERAGE_MIN), f"min {100 * cov.min():.1f}% (layer {worst}), mean {100 * cov.mean():.1f}%",
-            f"{int(np.sum(cov < COVERAGE_MIN))} of {len(cov)} layers below {100 * COVERAGE_MIN:.0f}%")
+            f"{len(low)} of {len(cov)} layers below {100 * COVERAGE_MIN:.0f}%" + (f": layers {layer_list(low)}" if len(low) else ""), tuple(low))
         add("overlap", bool(ovl.max() <= OVERLAP_MAX), f"max {100 * ovl.max():.1f}% (layer {int(np.argmax(ovl)) + 1}), mean {100 * ovl.mean():.1f}%",
-            f"{int(np.sum(ovl > OVERLAP_MAX))} layers above {100 * OVERLAP_MAX:.0f}%")
+            f"{len(high)} layers above {100 * OVERLAP_MAX:.0f}%" + (f": layers {layer_list(high)}" if len(high) else ""), tuple(high))
     else:
         add("layers present", False, "no layers/layer_*.ply", "coverage cannot be checked")
     if facing:
