@@ -380,6 +380,7 @@ def deviate_axes(
         done = np.zeros(len(left), bool)
         for cand in cands:  # (n, 3) per azimuth
             rows = np.flatnonzero(~done & (cand[:, 2] > -1 + 1e-9))
+            rows = rows[~blocked_rungs(collides, positions[left[rows]], cand[rows])]
             if len(rows) == 0:
                 continue
             q, ok = ladder(robot, cell, positions[left[rows]], cand[rows], p)
@@ -389,6 +390,17 @@ def deviate_axes(
             done[rows] = True
         left = left[~done]
     return axes, deviation
+
+
+def blocked_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, positions: np.ndarray,
+                  normals: np.ndarray) -> np.ndarray:
+    """(m,) bool: waypoints where every rotation θ of the nozzle collides whatever the arm does, by
+    the predicate's own whole-rung test ``collides.blocked(nozzle frames)`` when it has one
+    (:meth:`curvslice.collision.CollisionScene.blocked`); all False otherwise."""
+    test = getattr(collides, "blocked", None)
+    if test is None or not len(positions):
+        return np.zeros(len(positions), bool)
+    return np.asarray(test(deposition_frames(positions, normals, np.zeros(1))[:, 0]), bool)
 
 
 def _any_free(q: np.ndarray, ok: np.ndarray, collides: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
