@@ -50,7 +50,7 @@ def run(folder: Path, layers: list[int], per_layer: int, samples: int, sigma: fl
     robot, cell = load_robot(robot_name), load_workcell(robot_name)
     meshes = [trimesh.load(p, force="mesh") for p in sorted((folder / "layers").glob("layer_*.ply"))]
     platform = np.load(folder / "field.npz")["platform_vertices"]
-    exact = CollisionScene(robot, cell, platform)
+    exact = CollisionScene(robot, cell, platform, bounds=False)  # the labels: fcl on every box-overlapping pair
     proxy = CollisionScene(robot, cell, platform, bounds=True)
     rng = np.random.default_rng(0)
     rows = []
