@@ -142,20 +142,27 @@ class _DistanceGrid:
         return self.origin + np.array(self.edt.shape) * self.h
 
 
-def distance_grid(mesh: trimesh.Trimesh, h: float) -> _DistanceGrid:
-    """The conservative distance field of a mesh's triangles (cell size ``h`` mm): triangles split
-    to edges ≤ h span at most two cells per axis, and every cell their bounding box meets is marked,
-    so each surface point lies in a marked cell (within h·√3/2 of its centre);
-    ``scipy.ndimage.distance_transform_edt`` then gives each cell centre's distance to the marked
-    ones."""
-    v, f = trimesh.remesh.subdivide_to_size(np.asarray(mesh.vertices, float), np.asarray(mesh.faces), h)
-    tri = v[f]
+def distance_grid(mesh: trimesh.Trimesh, h: float, span: int = 3) -> _DistanceGrid:
+    """The conservative distance field of a mesh's triangles (cell size ``h`` mm): every cell a
+    triangle's bounding box meets is marked, so each surface point lies in a marked cell (within
+    h·√3/2 of its centre); ``scipy.ndimage.distance_transform_edt`` then gives each cell centre's
+    distance to the marked ones. Only triangles whose box spans more than ``span`` cells along an
+    axis are split first (to edges ≤ h, two cells at most): a model's triangles are mostly about
+    a voxel, and splitting them all cost more than the field."""
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
     origin = v.min(axis=0) - 2 * h
     shape = np.ceil((v.max(axis=0) + 2 * h - origin) / h).astype(int) + 1
+    tri = v[f]
     lo = np.floor((tri.min(axis=1) - origin) / h).astype(np.int64)
     hi = np.floor((tri.max(axis=1) - origin) / h).astype(np.int64)
+    big = (hi - lo >= span).any(axis=1)
+    if big.any():
+        sv, sf = trimesh.remesh.subdivide_to_size(v, f[big], h)
+        small = sv[sf]
+        lo = np.vstack([lo[~big], np.floor((small.min(axis=1) - origin) / h).astype(np.int64)])
+        hi = np.vstack([hi[~big], np.floor((small.max(axis=1) - origin) / h).astype(np.int64)])
     marked = np.zeros(shape, bool)
-    for offset in np.ndindex(2, 2, 2):
+    for offset in np.ndindex(span, span, span):
         idx = np.minimum(lo + offset, hi)
         marked[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     edt = distance_transform_edt(~marked) * h
