@@ -174,12 +174,9 @@ def _search(
                 asked_total += len(todo)
             return ans > 0
 
-        # a rejected node gets the other nodes of its IK branch in that rung checked (collisions mostly
-        # follow the branch); once p is doubled (a hard stretch) its whole rung, in the same batched
-        # query: fewer rounds of search and query (each query costs ~1 ms before its first pose)
-        group = np.arange(8 * p) % 8 if p == start_rotations(cell.rotations) else None
+        branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
         path, _, _ = shortest_path(q, valid & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
-                                   None if collides is None else node_ok, group, edges)
+                                   None if collides is None else node_ok, branch, edges)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
         # (a dead rung's skip and the split after it are no break a finer ladder could mend)
         rows = np.flatnonzero(path.node >= 0)
