@@ -321,12 +321,16 @@ UR_BRANCH_SIGNS = np.array([[s1, s5, s3] for s1 in (1.0, -1.0) for s5 in (1.0, -
 
 def _ik_ur(robot: Robot, T: np.ndarray, branch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Hawkins's closed form for the UR offset wrist: (n, 8, 6) solutions and (n, 8) validity, or
-    with ``branch`` (n,) only that solution of each pose: (n, 1, 6) and (n, 1)."""
+    with ``branch`` (n,) only that solution of each pose: (n, 1, 6) and (n, 1). Shoulder and wrist
+    (4 combinations) fix joints 1, 5, 6 and the frame of the elbow's plane; the elbow doubles them."""
     d, a, alpha = _ur_dh(robot)
     d4, d6, a2, a3 = d[3], d[5], a[1], a[2]
     Td = rigid_inverse(robot.base_offset) @ T
     R, p = Td[:, :3, :3], Td[:, :3, 3]
-    sign = UR_BRANCH_SIGNS[None] if branch is None else UR_BRANCH_SIGNS[np.asarray(branch)][:, None]  # (., B, 3)
+    if branch is None:
+        sign, elbow = UR_BRANCH_SIGNS[None, ::2, :2], np.array([1.0, -1.0])  # (1, 4, 2), then x2
+    else:
+        sign, elbow = UR_BRANCH_SIGNS[np.asarray(branch)][:, None, :2], UR_BRANCH_SIGNS[np.asarray(branch), 2:]
     p05 = p - d6 * R[:, :, 2]
     r = np.hypot(p05[:, 0], p05[:, 1])
     cphi = d4 / np.maximum(r, 1e-12)
@@ -350,12 +354,17 @@ def _ik_ur(robot: Robot, T: np.ndarray, branch: np.ndarray | None = None) -> tup
     n13 = np.linalg.norm(P13, axis=-1)
     c3 = (n13**2 - a2**2 - a3**2) / (2 * a2 * a3)
     ok3 = np.abs(c3) <= 1.0 + 1e-9
-    th3 = np.arccos(np.clip(c3, -1, 1)) * sign[..., 2]
-    th2 = -np.arctan2(P13[..., 1], -P13[..., 0]) + np.arcsin(np.clip(a3 * np.sin(th3) / np.maximum(n13, 1e-12), -1, 1))
+    th3 = np.arccos(np.clip(c3, -1, 1))[..., None] * elbow[:, None] if branch is not None else \
+        np.arccos(np.clip(c3, -1, 1))[..., None] * elbow  # (n, B, E)
+    th2 = -np.arctan2(P13[..., 1], -P13[..., 0])[..., None] + np.arcsin(
+        np.clip(a3 * np.sin(th3) / np.maximum(n13, 1e-12)[..., None], -1, 1))
     T13 = _dh(th2, d[1], a[1], alpha[1]) @ _dh(th3, d[2], a[2], alpha[2])
-    th4 = np.arctan2(*_rotation_10_00(T13, T14))
-    q = np.stack([th1, th2, th3, th4, th5, th6], axis=-1)
-    return q, ok1[:, None] & ok5 & ok3
+    th4 = np.arctan2(*_rotation_10_00(T13, T14[..., None, :, :]))
+    shape = th3.shape
+    q = np.stack([np.broadcast_to(x, shape) for x in (th1[..., None], th2, th3, th4, th5[..., None], th6[..., None])],
+                 axis=-1).reshape(len(T), -1, 6)
+    ok = np.broadcast_to((ok1[:, None] & ok5 & ok3)[..., None], shape).reshape(len(T), -1)
+    return q, ok
 
 
 def _rotation_10_00(T13: np.ndarray, T14: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
