@@ -359,18 +359,13 @@ def _ik_ur(robot: Robot, T: np.ndarray, branch: np.ndarray | None = None) -> tup
     th2 = -np.arctan2(P13[..., 1], -P13[..., 0])[..., None] + np.arcsin(
         np.clip(a3 * np.sin(th3) / np.maximum(n13, 1e-12)[..., None], -1, 1))
     T13 = _dh(th2, d[1], a[1], alpha[1]) @ _dh(th3, d[2], a[2], alpha[2])
-    th4 = np.arctan2(*_rotation_10_00(T13, T14[..., None, :, :]))
+    T34 = rigid_inverse(T13) @ T14[..., None, :, :]
+    th4 = np.arctan2(T34[..., 1, 0], T34[..., 0, 0])
     shape = th3.shape
     q = np.stack([np.broadcast_to(x, shape) for x in (th1[..., None], th2, th3, th4, th5[..., None], th6[..., None])],
                  axis=-1).reshape(len(T), -1, 6)
     ok = np.broadcast_to((ok1[:, None] & ok5 & ok3)[..., None], shape).reshape(len(T), -1)
     return q, ok
-
-
-def _rotation_10_00(T13: np.ndarray, T14: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Entries (1, 0) and (0, 0) of T13⁻¹ T14 (the rotation of joint 4), without the full product."""
-    R13, R14 = T13[..., :3, :3], T14[..., :3, :3]
-    return (R13[..., :, 1] * R14[..., :, 0]).sum(-1), (R13[..., :, 0] * R14[..., :, 0]).sum(-1)
 
 
 def _ik_spherical(robot: Robot, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
