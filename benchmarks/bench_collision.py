@@ -4,7 +4,9 @@ Per layer: the scene carries the part printed so far (the union of the earlier l
 collision-indication function (RBF SVM, Algorithm 7 samples) is trained on that layer's working
 surface; the sphere proxy (:class:`curvslice.collision_estimate.SphereBounds`) is rebuilt for the
 part. The SVM is measured as trained (b + ε) and after calibrating b on a held-out labelled set
-(a third of the size, drawn the same way) so that none of its collisions is called free. Both are measured against fcl on labelled configurations near the contact C-space: half on it
+(a third of the size, drawn the same way) so that none of its collisions is called free. Both are measured
+against fcl (a scene without the proxy: every pair whose boxes overlap goes to fcl) on labelled
+configurations near the contact C-space: half on it
 (random surface point, normal, θ, every IK solution), half perturbed from it by N(0, σ) per joint.
 False "free" (estimator says free, fcl finds contact) must be 0. Run from a slice folder:
 
@@ -50,7 +52,7 @@ def run(folder: Path, layers: list[int], per_layer: int, samples: int, sigma: fl
     robot, cell = load_robot(robot_name), load_workcell(robot_name)
     meshes = [trimesh.load(p, force="mesh") for p in sorted((folder / "layers").glob("layer_*.ply"))]
     platform = np.load(folder / "field.npz")["platform_vertices"]
-    exact = CollisionScene(robot, cell, platform)
+    exact = CollisionScene(robot, cell, platform, bounds=False)  # the labels: fcl on every box-overlapping pair
     proxy = CollisionScene(robot, cell, platform, bounds=True)
     rng = np.random.default_rng(0)
     rows = []

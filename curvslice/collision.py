@@ -71,6 +71,29 @@ def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return order[new], group
 
 
+def rotation_core(body: Body) -> tuple[fcl.CollisionGeometry, np.ndarray] | None:
+    """The part of an extruder body (pose in the nozzle frame N) that every rotation θ about the
+    nozzle axis (N's z, Eq. 4.3) keeps inside the body: a cylinder or cone on the axis is its own
+    core, a box with a face normal along the axis holds the largest cylinder about the axis that
+    fits its footprint; ``None`` where no such core exists. Returns the fcl geometry and its pose in N."""
+    R, t = body.pose[:3, :3], body.pose[:3, 3]
+    along = abs(abs(R[2, 2]) - 1.0) < 1e-9  # the body's own z parallel to the nozzle axis
+    if not along:
+        return None
+    if body.kind in ("cylinder", "cone"):
+        return ((fcl.Cylinder if body.kind == "cylinder" else fcl.Cone)(*body.dims), body.pose) \
+            if np.hypot(t[0], t[1]) < 1e-9 else None
+    if body.kind != "box":
+        return None
+    axis = R.T @ -t  # the nozzle axis's point at the box centre's height, box frame
+    radius = min(body.dims[0] / 2 - abs(axis[0]), body.dims[1] / 2 - abs(axis[1]))
+    if radius <= 0:
+        return None
+    pose = np.eye(4)
+    pose[2, 3] = t[2]
+    return fcl.Cylinder(radius, float(body.dims[2])), pose
+
+
 def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -> trimesh.Trimesh:
     """The platform solid in the model frame P: the hull of the slice's platform vertices, or the
     workcell's disc (radius, thickness) under z = 0."""
@@ -83,6 +106,9 @@ def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -
 
 #: link vertices tested against the static boxes before fcl (see :meth:`CollisionScene._inside_box`)
 PROBES = 24
+#: configurations a query needs before the sphere bounds pay for their fixed cost (~0.4 ms a query;
+#: fcl on the box-overlapping pairs costs ~30 us a configuration)
+BOUNDS_BATCH = 64
 #: printed layers per BVH of the carried part (see :meth:`CollisionScene.for_layer`)
 PART_BLOCK = 16
 #: cells of the part's distance field along its longest side at most (cells ≥ 0.5 mm)
@@ -136,6 +162,9 @@ class CollisionScene:
                        for k, (body, pose, shape) in enumerate(zip(list(cell.extruder) + list(cell.obstacles),
                                                                    self.static_poses, self.static)) if body.kind == "box"]
         self._flange_link = max(range(len(robot.links)), key=lambda k: robot.links[k].joint)
+        cores = [rotation_core(body) for body in cell.extruder]
+        self._cores = [(fcl.CollisionObject(geom, fcl.Transform()), pose, float(np.hypot(geom.radius, geom.lz / 2)))
+                       for geom, pose in filter(None, cores)]  # with the radius of a ball around each
         self._build_pairs()
 
     def set_part(self, mesh: trimesh.Trimesh | None) -> None:
@@ -153,8 +182,38 @@ class CollisionScene:
             self.bounds.set_pieces([p.bounds for p in pieces])
         self._build_pairs()
 
+    def __call__(self, q: np.ndarray) -> np.ndarray:
+        """The scene is the collision predicate of its carried part: :meth:`collisions`."""
+        return self.collisions(q)
+
+    def blocked(self, frames: np.ndarray) -> np.ndarray:
+        """(n,) bool: nozzle frames (n, 4, 4) in the model frame P (a waypoint at any θ) where the
+        rotation-invariant core of the extruder (:func:`rotation_core`) meets the platform or the
+        part carried now. There every rotation θ about the nozzle axis, on every IK branch, puts a
+        checked carried/static pair in contact (fcl would say so node by node): a rung no p can
+        make reachable (§4.3.1)."""
+        frames = np.asarray(frames, float).reshape(-1, 4, 4)
+        out = np.zeros(len(frames), bool)
+        if not self._cores:
+            return out
+        request = fcl.CollisionRequest()
+        lo = np.array([s.center - s.half for s in self.carried])
+        hi = np.array([s.center + s.half for s in self.carried])
+        for shape in self.carried:  # meshes in P
+            _set(shape.obj, np.eye(4))
+        for obj, pose, reach in self._cores:
+            placed = frames @ pose
+            c = placed[:, :3, 3]
+            near = ((c[:, None] >= lo[None] - reach) & (c[:, None] <= hi[None] + reach)).all(axis=-1)
+            for i in np.flatnonzero(~out & near.any(axis=1)):
+                _set(obj, placed[i])
+                out[i] = any(fcl.collide(obj, self.carried[k].obj, request, fcl.CollisionResult())
+                             for k in np.flatnonzero(near[i]))
+        return out
+
     def for_layer(self, layers: list[trimesh.Trimesh], layer: int):
-        """Carry the union of layers 1..layer-1 (print order) and return :meth:`collisions`.
+        """Carry the union of layers 1..layer-1 (print order) and return the scene, the layer's
+        collision predicate (``scene(q)``, :meth:`collisions`; :meth:`blocked` for whole rungs).
 
         The part is carried as two pieces (BVH and distance field): the layers before the last
         multiple of ``PART_BLOCK`` (built once per block of layers) and the few layers after it
@@ -173,7 +232,7 @@ class CollisionScene:
             if block:
                 pieces.append(self._pieces[key])
         self._carry(pieces)
-        return self.collisions
+        return self
 
     def _build_pairs(self) -> None:
         L, C, S = len(self.links), len(self.carried), len(self.static)
@@ -299,7 +358,7 @@ class CollisionScene:
         centre = (R @ self.centers[..., None])[..., 0] + poses[..., :3, 3]
         reach = (np.abs(R) @ self.halves[..., None])[..., 0]
         near = (np.abs(centre[:, a] - centre[:, b]) <= reach[:, a] + reach[:, b]).all(axis=-1)
-        if self.bounds is not None:
+        if self.bounds is not None and len(poses) >= BOUNDS_BATCH:
             near &= ~self.bounds.apart(poses, self.pairs, near)
         return near
 

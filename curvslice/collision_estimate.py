@@ -142,20 +142,27 @@ class _DistanceGrid:
         return self.origin + np.array(self.edt.shape) * self.h
 
 
-def distance_grid(mesh: trimesh.Trimesh, h: float) -> _DistanceGrid:
-    """The conservative distance field of a mesh's triangles (cell size ``h`` mm): triangles split
-    to edges ≤ h span at most two cells per axis, and every cell their bounding box meets is marked,
-    so each surface point lies in a marked cell (within h·√3/2 of its centre);
-    ``scipy.ndimage.distance_transform_edt`` then gives each cell centre's distance to the marked
-    ones."""
-    v, f = trimesh.remesh.subdivide_to_size(np.asarray(mesh.vertices, float), np.asarray(mesh.faces), h)
-    tri = v[f]
+def distance_grid(mesh: trimesh.Trimesh, h: float, span: int = 3) -> _DistanceGrid:
+    """The conservative distance field of a mesh's triangles (cell size ``h`` mm): every cell a
+    triangle's bounding box meets is marked, so each surface point lies in a marked cell (within
+    h·√3/2 of its centre); ``scipy.ndimage.distance_transform_edt`` then gives each cell centre's
+    distance to the marked ones. Only triangles whose box spans more than ``span`` cells along an
+    axis are split first (to edges ≤ h, two cells at most): a model's triangles are mostly about
+    a voxel, and splitting them all cost more than the field."""
+    v, f = np.asarray(mesh.vertices, float), np.asarray(mesh.faces)
     origin = v.min(axis=0) - 2 * h
     shape = np.ceil((v.max(axis=0) + 2 * h - origin) / h).astype(int) + 1
+    tri = v[f]
     lo = np.floor((tri.min(axis=1) - origin) / h).astype(np.int64)
     hi = np.floor((tri.max(axis=1) - origin) / h).astype(np.int64)
+    big = (hi - lo >= span).any(axis=1)
+    if big.any():
+        sv, sf = trimesh.remesh.subdivide_to_size(v, f[big], h)
+        small = sv[sf]
+        lo = np.vstack([lo[~big], np.floor((small.min(axis=1) - origin) / h).astype(np.int64)])
+        hi = np.vstack([hi[~big], np.floor((small.max(axis=1) - origin) / h).astype(np.int64)])
     marked = np.zeros(shape, bool)
-    for offset in np.ndindex(2, 2, 2):
+    for offset in np.ndindex(span, span, span):
         idx = np.minimum(lo + offset, hi)
         marked[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     edt = distance_transform_edt(~marked) * h
@@ -183,7 +190,23 @@ def carried_bounds(mesh: trimesh.Trimesh, grid: float, hull: bool = False) -> Ca
         planes = np.c_[h.face_normals, np.einsum("ij,ij->i", h.face_normals, h.triangles[:, 0])]
         planes = np.unique(np.round(planes, 9), axis=0)  # one plane per facet
         vertices = np.asarray(h.vertices, float)
-    return CarriedBounds(planes[:, :3], planes[:, 3], vertices, distance_grid(mesh, grid))
+    field = convex_grid(planes, vertices, grid) if hull and mesh.is_convex else distance_grid(mesh, grid)
+    return CarriedBounds(planes[:, :3], planes[:, 3], vertices, field)
+
+
+def convex_grid(planes: np.ndarray, vertices: np.ndarray, h: float) -> _DistanceGrid:
+    """The distance field of a convex body's surface (facet planes n·x = d (F, 4), vertices) on
+    cells of size ``h``, from the planes alone: at a cell centre |max_i(n_i·x − d_i)|, the exact
+    distance to the surface inside and a lower bound outside, so no marking slack is needed (the
+    platform's field: no surface to split and mark)."""
+    origin = vertices.min(axis=0) - 2 * h
+    shape = np.ceil((vertices.max(axis=0) + 2 * h - origin) / h).astype(int) + 1
+    x, y, z = (origin[k] + (np.arange(shape[k]) + 0.5) * h for k in range(3))
+    signed = np.full(tuple(shape), -np.inf)
+    for n, d in zip(planes[:, :3], planes[:, 3]):  # one plane at a time: the grid stays in cache
+        np.maximum(signed, (n[0] * x - d)[:, None, None] + (n[1] * y)[None, :, None] + (n[2] * z)[None, None, :],
+                   out=signed)
+    return _DistanceGrid(origin, h, np.abs(signed), 1e-6)  # slack: the planes' rounding
 
 
 def _transform(T: np.ndarray, x: np.ndarray) -> np.ndarray:

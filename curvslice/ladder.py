@@ -323,16 +323,16 @@ def ladder_at(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.n
     Rz = np.zeros((len(T), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
     T[:, :3, :3] = T[:, :3, :3] @ Rz
-    q, ok = _limited_ik(robot, cell, cell.nozzle @ rigid_inverse(T) @ rigid_inverse(cell.platform_mount))
-    k = np.arange(len(T))
-    return q[k, branch], ok[k, branch]
+    return _limited_ik(robot, cell, cell.nozzle @ rigid_inverse(T) @ rigid_inverse(cell.platform_mount), branch)
 
 
-def _limited_ik(robot: Robot, cell: Workcell, T: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """IK of flange poses (n, 4, 4): (n, 8, 6) and (n, 8) valid inside the joint limits; joints with
-    more than one revolution of range keep angles in [-π, π), the others take the representative
-    inside their limits (none: invalid)."""
-    q, ok = ik(robot, T)
+def _limited_ik(robot: Robot, cell: Workcell, T: np.ndarray,
+                branch: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """IK of flange poses (n, 4, 4): (n, 8, 6) and (n, 8) valid inside the joint limits (with
+    ``branch`` (n,): that solution only, (n, 6) and (n,)); joints with more than one revolution of
+    range keep angles in [-π, π), the others take the representative inside their limits (none:
+    invalid)."""
+    q, ok = ik(robot, T, branch=branch)
     lo, hi = cell.limits(robot)
     q = np.where(circular_joints(lo, hi), q, lo + (q - lo) % TWO_PI)
     ok &= ((q >= lo - 1e-12) & (q <= hi + 1e-12)).all(axis=-1)
@@ -380,6 +380,7 @@ def deviate_axes(
         done = np.zeros(len(left), bool)
         for cand in cands:  # (n, 3) per azimuth
             rows = np.flatnonzero(~done & (cand[:, 2] > -1 + 1e-9))
+            rows = rows[~blocked_rungs(collides, positions[left[rows]], cand[rows])]
             if len(rows) == 0:
                 continue
             q, ok = ladder(robot, cell, positions[left[rows]], cand[rows], p)
@@ -389,6 +390,17 @@ def deviate_axes(
             done[rows] = True
         left = left[~done]
     return axes, deviation
+
+
+def blocked_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, positions: np.ndarray,
+                  normals: np.ndarray) -> np.ndarray:
+    """(m,) bool: waypoints where every rotation θ of the nozzle collides whatever the arm does, by
+    the predicate's own whole-rung test ``collides.blocked(nozzle frames)`` when it has one
+    (:meth:`curvslice.collision.CollisionScene.blocked`); all False otherwise."""
+    test = getattr(collides, "blocked", None)
+    if test is None or not len(positions):
+        return np.zeros(len(positions), bool)
+    return np.asarray(test(deposition_frames(positions, normals, np.zeros(1))[:, 0]), bool)
 
 
 def _any_free(q: np.ndarray, ok: np.ndarray, collides: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:

@@ -15,7 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from curvslice.kinematics import Robot
-from curvslice.ladder import TWO_PI, circular_joints, deviate_axes, joint_steps, ladder, ladder_at, shortest_path
+from curvslice.ladder import (TWO_PI, blocked_rungs, circular_joints, deviate_axes, joint_steps, ladder, ladder_at,
+                              shortest_path)
 from curvslice.workcell import Workcell
 
 
@@ -142,9 +143,11 @@ def _search(
     solved_at = np.full(m, p)  # p of the IK solutions held for each rung
     known = np.zeros((m, 8 * p), np.int8)  # collision answers: 0 unknown, 1 free, -1 colliding
     fixed = np.zeros(m, bool)
+    dead = blocked_rungs(collides, positions, normals)  # no θ at any p: never refined, not a break
+    solved[dead] = False
     for row, pin in zip((0, m - 1), ends):
         if pin is not None:  # node 0 (θ sample 0, branch 0) stays node 0 when p doubles
-            fixed[row] = True
+            fixed[row], dead[row] = True, False
             q[row] = np.nan
             q[row, 0] = pin
             solved[row] = False
@@ -154,7 +157,7 @@ def _search(
     best, whole = None, False
     edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # rung i -> its edges to rung i+1
     while True:
-        redo = np.flatnonzero((solved_at < level) & ~fixed)  # refined rungs: IK at the finer θ samples
+        redo = np.flatnonzero((solved_at < level) & ~fixed & ~dead)  # refined rungs: IK at the finer θ samples
         if len(redo):
             q[redo], solved[redo] = ladder(robot, cell, positions[redo], normals[redo], p)
             solved_at[redo] = p
@@ -175,9 +178,13 @@ def _search(
         path, _, _ = shortest_path(q, valid & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
                                    None if collides is None else node_ok, branch, edges)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
+        # (a dead rung's skip and the split after it are no break a finer ladder could mend)
         rows = np.flatnonzero(path.node >= 0)
-        split_rows = rows[1:][np.diff(path.segment[rows]) != 0]
-        breaks = len(split_rows) + m - len(rows)
+        cut = np.flatnonzero(np.diff(path.segment[rows]) != 0)
+        passed = np.cumsum(dead)
+        split_rows = rows[cut + 1][passed[rows[cut + 1]] == passed[rows[cut]]]
+        skipped = (path.node < 0) & ~dead
+        breaks = len(split_rows) + int(skipped.sum())
         if best is None or breaks < best[0]:
             best = (breaks, int(level.max()), q.copy(), valid, path)
         elif not whole and (level < p).any():
@@ -189,7 +196,7 @@ def _search(
             break  # a denser ladder did not help: the breaks come from the path itself (§4.3.1)
         if breaks == 0 or p * 2 > limit:
             break
-        refine = path.node < 0 if dense is None else (path.node < 0) | dense
+        refine = skipped if dense is None else skipped | dense
         for r in split_rows:
             refine[max(r - REFINE_WINDOW, 0) : r + 1] = True
         # θ samples nest: the nodes of p are the even ones of 2p (same IK branch order)
@@ -467,6 +474,18 @@ class Remembered:
 
     def __init__(self, collides: Callable[[np.ndarray], np.ndarray]):
         self.collides, self.known, self.asked = collides, {}, 0
+        self.dead: dict[bytes, bool] = {}
+        if hasattr(collides, "blocked"):
+            self.blocked = self._blocked
+
+    def _blocked(self, frames: np.ndarray) -> np.ndarray:
+        """The predicate's whole-rung test (``collides.blocked(frames)``), remembered per frame."""
+        frames = np.ascontiguousarray(frames, float)
+        keys = [f.tobytes() for f in frames]
+        new = [i for i, k in enumerate(keys) if k not in self.dead]
+        if new:
+            self.dead.update(zip((keys[i] for i in new), self.collides.blocked(frames[new]).tolist()))
+        return np.array([self.dead[k] for k in keys], bool).reshape(len(frames))
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         q = np.ascontiguousarray(q, float)

@@ -93,6 +93,17 @@ def test_solution_count_matches_dense_numerical_search(robot):
             assert _circ(analytic, s).max(axis=1).min() < 1e-4
 
 
+def test_one_branch_solve_equals_that_branch_of_the_full_solve(robot):
+    T = fk(robot, _random_q(robot, 400, 5))
+    branch = np.random.default_rng(6).integers(0, 8, len(T))
+    q, ok = ik(robot, T)
+    qb, okb = ik(robot, T, branch=branch)
+    k = np.arange(len(T))
+    np.testing.assert_array_equal(okb, ok[k, branch])
+    assert okb.mean() > 0.5
+    np.testing.assert_allclose(qb[okb], q[k, branch][okb], atol=1e-12)
+
+
 def test_unreachable_pose_has_no_solution(robot):
     T = np.eye(4)
     T[0, 3] = 5000.0  # 5 m away: beyond every arm's reach

@@ -12,6 +12,7 @@ import pytest
 from curvslice.collision import CollisionScene
 from curvslice.kinematics import fk, fk_reference, load_robot
 from curvslice.ladder import (
+    blocked_rungs,
     circular_joints,
     deviate_axes,
     edge_weights,
@@ -275,6 +276,21 @@ def test_axis_deviation_frees_a_waypoint_whose_heater_hits_the_platform(ur5):
     q, ok = ladder(robot, cell, c[:1], axes[:1], cell.rotations)
     assert not scene.collisions(q[0, ok[0]]).all()
     assert dev[1] == 0 and np.allclose(axes[1], t[1], atol=1e-15)  # beyond the bound: left as planned
+
+
+def test_blocked_rungs_collide_at_every_rotation_and_branch(ur5):
+    """The scene's whole-rung test (the heater block's inscribed cylinder about the nozzle axis
+    against the platform) marks the 55° and 80° waypoints above, whose every node fcl finds in
+    contact at p = 2 × the workcell's, and not the upright or 20° ones."""
+    robot, cell = ur5
+    scene = CollisionScene(robot, cell)
+    c, t = _platform_waypoints([0.0, 20.0, 55.0, 80.0])
+    dead = blocked_rungs(scene, c, t)
+    np.testing.assert_array_equal(dead, [False, False, True, True])
+    assert not blocked_rungs(scene.collisions, c, t).any()  # a bare predicate: no whole-rung test
+    q, ok = ladder(robot, cell, c, t, 2 * cell.rotations)
+    for j in np.flatnonzero(dead):
+        assert ok[j].any() and scene.collisions(q[j, ok[j]]).all()
 
 
 def test_ladder_at_equals_the_ladder_nodes_at_the_sampled_rotations(ur5):
