@@ -167,7 +167,7 @@ def test_verify_section_is_spliced_into_results_md(tmp_path):
            "overlap": {"percent": 6.1, "layer": 18, "failing": [8, 18]},
            "field": {"voxels": 100, "layers": 9, "missed": 1, "pieces": [
                {"size": 1, "z_mm": [0.4, 0.4], "on_surface": 1, "on_platform": True, "layers_around": [1, 1]}]},
-           "inside": {"vertices": 10, "disagree": 0, "layers": [], "max_w": 0.0}}
+           "inside": {"vertices": 10, "disagree": 0, "layers": [], "max_w": 0.0, "winding_alone": 0, "winding_alone_layers": []}}
     md = markdown([run], {"command": "curvslice bench --verify-only", "commit": "abc", "date": "d", "load": "1"})
     row = next(line for line in md.splitlines() if line.startswith("| kitten @0.8 mm |"))
     assert "| 1 (0) **above C++** |" in row and "| 0 / 2 |" in row and row.endswith("**FAIL** |")
