@@ -59,14 +59,19 @@ def cases(models: tuple[str, ...] | None = None) -> list[Case]:
 def missed_voxels(outdir: Path) -> dict[str, object]:
     """Missed voxels (occupied, G = 0) of ``field.npz`` and where they are: connected pieces (26-
     neighbourhood), each with its size, height span (mm above the platform), how many of its voxels
-    touch ∂H̄ (a face neighbour outside the grid's occupied set) and the lowest layer G of the printed
-    voxels around it (a piece enclosed by early layers was shadowed; one under later layers was
-    never reached before they closed over it)."""
+    touch ∂H̄ (a face neighbour outside the occupied set), the layers of the printed voxels around it,
+    and why it was missed: the earliest layer that could have supported it (an AM-stable neighbour,
+    Constraint 1) and how deep it then already lay inside that layer's front C(layers ≤ s ∪ T)
+    (Constraint 2 forbids ε or more: shadowed before it could be supported)."""
     from scipy import ndimage
+    from scipy.spatial import ConvexHull
+
+    from curvslice.verify.field import _asn_offsets
 
     with np.load(outdir / "field.npz", allow_pickle=False) as z:
-        occupied, growing = z["occupied"], z["growing"]
+        occupied, growing = z["occupied"], z["growing"].astype(np.int64)
         origin, w = np.asarray(z["origin"], float), float(z["voxel_size"])
+        platform = np.asarray(z["platform_vertices"], float) if "platform_vertices" in z.files else np.zeros((0, 3))
     missed = occupied & (growing == 0)
     out: dict[str, object] = {"voxels": int(occupied.sum()), "layers": int(growing.max()), "missed": int(missed.sum()),
                               "pieces": []}
@@ -75,16 +80,30 @@ def missed_voxels(outdir: Path) -> dict[str, object]:
     labels, count = ndimage.label(missed, structure=np.ones((3, 3, 3), bool))
     outer = ~ndimage.binary_erosion(np.pad(occupied, 1), structure=ndimage.generate_binary_structure(3, 1))[1:-1, 1:-1, 1:-1]
     ring = ndimage.binary_dilation(missed, structure=np.ones((3, 3, 3), bool)) & ~missed & (growing > 0)
+    never = np.iinfo(np.int64).max
+    pad = np.pad(np.where(growing > 0, growing, never), 1, constant_values=never)
+    fronts: dict[int, ConvexHull] = {}
     pieces = []
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         piece = labels[sl] == k
         ijk = np.argwhere(piece) + [s.start for s in sl]
         z_mm = origin[2] + w * ijk[:, 2]
         around = growing[ndimage.binary_dilation(labels == k, structure=np.ones((3, 3, 3), bool)) & ring]
+        support = np.min([pad[tuple((ijk + 1 + d).T)] for d in _asn_offsets()], axis=0)
+        depths = []
+        for s in np.unique(support[support < never]):
+            if s not in fronts:
+                fronts[s] = ConvexHull(np.vstack([platform, origin + w * np.argwhere((growing > 0) & (growing <= s))]))
+            x = origin + w * ijk[support == s]
+            depths.append(-(x @ fronts[s].equations[:, :3].T + fronts[s].equations[:, 3]).max(axis=1) / w)
+        depth = np.concatenate(depths) if depths else np.zeros(0)
         pieces.append({"size": int(piece.sum()), "z_mm": [round(float(z_mm.min()), 1), round(float(z_mm.max()), 1)],
                        "on_surface": int(outer[tuple(ijk.T)].sum()),
                        "on_platform": bool(z_mm.min() - w / 2 <= 1e-6 * w),
-                       "layers_around": [int(around.min()), int(around.max())] if len(around) else []})
+                       "layers_around": [int(around.min()), int(around.max())] if len(around) else [],
+                       "first_support": int(support.min()) if (support < never).any() else None,
+                       "unsupported": int((support == never).sum()),
+                       "depth_w": [round(float(depth.min()), 2), round(float(depth.max()), 2)] if len(depth) else []})
     out["pieces"] = sorted(pieces, key=lambda p: -p["size"])
     return out
 
@@ -195,9 +214,13 @@ def _where(field: dict) -> str:
     text = []
     for p in pieces[:3]:
         around = p["layers_around"]
+        depth = p.get("depth_w") or []
         text.append(f"{p['size']} at z {p['z_mm'][0]:g}–{p['z_mm'][1]:g} mm ({p['on_surface']} on ∂H̄"
                     + (", on the platform" if p["on_platform"] else "")
-                    + (f", between layers {around[0]}–{around[1]}" if around else "") + ")")
+                    + (f", between layers {around[0]}–{around[1]}" if around else "")
+                    + (f"; first supportable at layer {p['first_support']}, then already {depth[0]:g}–{depth[1]:g} w "
+                       "inside the front" if depth else "")
+                    + (f"; {p['unsupported']} with no printed neighbour" if p.get("unsupported") else "") + ")")
     return "; ".join(text) + (f"; +{len(pieces) - 3} pieces" if len(pieces) > 3 else "")
 
 
@@ -248,8 +271,10 @@ def markdown(records: list[dict], header: dict[str, object]) -> str:
                             if i["winding_alone"] else "") + ": the pseudonormal's sign fails where ∂H crosses itself")
     if not any(r.get("failed") or "crashed" in r or r.get("inside", {}).get("disagree") for r in records):
         lines.append("- none")
-    lines += ["", "Where the missed voxels are (largest connected pieces; 'between layers' = the layers of the printed "
-              "voxels around a piece):", ""]
+    lines += ["", "Where the missed voxels are and why (largest connected pieces; 'between layers' = the layers of the "
+              "printed voxels around a piece; 'first supportable' = the earliest layer with an AM-stable neighbour, "
+              "Constraint 1, and 'inside the front' = the depth of its voxels inside C(layers ≤ that one ∪ T) then: "
+              "at ε = 1 w or more, Constraint 2 forbids them — shadowed before support reached them):", ""]
     lines += [f"- {r['title']}: {r['field']['missed']} missed — {_where(r['field'])}" for r in records
               if "field" in r and r["field"]["missed"]] or ["- none missed"]
     return "\n".join(lines) + "\n"
