@@ -147,7 +147,7 @@ def run_case(case: Case, model: Path, workdir: Path, quiet: bool = False, reuse:
     instead (an interrupted table resumes where it stopped)."""
     saved = workdir / f"{case.folder}.json"
     if reuse and saved.is_file():
-        return json.loads(saved.read_text())
+        return {**json.loads(saved.read_text()), "reused": True}
     record = _run(case, model, workdir, quiet)
     saved.write_text(json.dumps(record, indent=1) + "\n")
     return record
@@ -228,7 +228,10 @@ def markdown(records: list[dict], header: dict[str, object]) -> str:
     """The RESULTS.md section: one row per run, then every failed check with its layers."""
     lines = [SECTION, "",
              f"Refresh with `{header['command']}` (slices into a scratch folder, then `curvslice verify` on it). "
-             f"Run on commit {header['commit']} ({header['date']}); load average {header['load']}. Standard settings: "
+             f"Run on commit {header['commit']} ({header['date']}); load average {header['load']}"
+             + (f"; {sum(bool(r.get('reused')) for r in records)} of {len(records)} runs were recorded by an earlier "
+                "run of the same command (`--reuse`)" if any(r.get("reused") for r in records) else "")
+             + ". Standard settings: "
              "the bunny at 1.0 mm, the others at 0.8 mm, default path width (voxel / 0.8); then the kitten at 1.0 / "
              "1.6 / 2.0 mm and at path widths 0.6 and 1.5 voxel widths. 'C++' = the authors' code on the same model and "
              "voxel (DESIGN.md; – where not measured). Coverage and overlap per layer (limits 95 % / 5 %); 'inside test "
