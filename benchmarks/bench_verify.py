@@ -16,6 +16,7 @@ and the parity are exact there too): a winding number that both other tests cont
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import time
@@ -149,6 +150,8 @@ def run_case(case: Case, model: Path, workdir: Path, quiet: bool = False, reuse:
     if reuse and saved.is_file():
         return {**json.loads(saved.read_text()), "reused": True}
     record = _run(case, model, workdir, quiet)
+    record.update(finished=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                  load=[round(x, 1) for x in os.getloadavg()])
     saved.write_text(json.dumps(record, indent=1) + "\n")
     return record
 
@@ -231,6 +234,10 @@ def markdown(records: list[dict], header: dict[str, object]) -> str:
              f"Run on commit {header['commit']} ({header['date']}); load average {header['load']}"
              + (f"; {sum(bool(r.get('reused')) for r in records)} of {len(records)} runs were recorded by an earlier "
                 "run of the same command (`--reuse`)" if any(r.get("reused") for r in records) else "")
+             + (f"; the runs finished {min(done)} – {max(done)}, {header.get('jobs', 1)} at a time, load average "
+                f"{min(loads):g}–{max(loads):g} (their seconds are wall times on a shared 2-core machine: upper bounds)"
+                if (done := [r["finished"] for r in records if r.get("finished")])
+                and (loads := [r["load"][0] for r in records if r.get("load")]) else "")
              + ". Standard settings: "
              "the bunny at 1.0 mm, the others at 0.8 mm, default path width (voxel / 0.8); then the kitten at 1.0 / "
              "1.6 / 2.0 mm and at path widths 0.6 and 1.5 voxel widths. 'C++' = the authors' code on the same model and "
