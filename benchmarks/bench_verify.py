@@ -7,13 +7,16 @@ Per run: missed voxels beside the authors' C++ on the same model and voxel (DESI
 whether they touch ∂H̄ or the platform), min coverage and max overlap with the layers outside the
 95 / 5 % limits, every failed check with its layers, and the verifier's inside test (winding number,
 Barill et al. 2018) cross-checked on every layer vertex against the exact signed distance to ∂H
-(closest feature's angle-weighted pseudonormal, Bærentzen & Aanæs 2005): a vertex farther than the
-verifier's tolerance from ∂H on which the two disagree is counted.
+(closest feature's angle-weighted pseudonormal, Bærentzen & Aanæs 2005): the vertices farther than
+the verifier's tolerance from ∂H on which the two disagree are counted, and the verifier's ray parity
+decides each (the pseudonormal's sign holds only where ∂H does not cross itself; the winding number
+and the parity are exact there too): a winding number that both other tests contradict fails the run.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import re
 import shutil
 import time
@@ -57,14 +60,19 @@ def cases(models: tuple[str, ...] | None = None) -> list[Case]:
 def missed_voxels(outdir: Path) -> dict[str, object]:
     """Missed voxels (occupied, G = 0) of ``field.npz`` and where they are: connected pieces (26-
     neighbourhood), each with its size, height span (mm above the platform), how many of its voxels
-    touch ∂H̄ (a face neighbour outside the grid's occupied set) and the lowest layer G of the printed
-    voxels around it (a piece enclosed by early layers was shadowed; one under later layers was
-    never reached before they closed over it)."""
+    touch ∂H̄ (a face neighbour outside the occupied set), the layers of the printed voxels around it,
+    and why it was missed: the earliest layer that could have supported it (an AM-stable neighbour,
+    Constraint 1) and how deep it then already lay inside that layer's front C(layers ≤ s ∪ T)
+    (Constraint 2 forbids ε or more: shadowed before it could be supported)."""
     from scipy import ndimage
+    from scipy.spatial import ConvexHull
+
+    from curvslice.verify.field import _asn_offsets
 
     with np.load(outdir / "field.npz", allow_pickle=False) as z:
-        occupied, growing = z["occupied"], z["growing"]
+        occupied, growing = z["occupied"], z["growing"].astype(np.int64)
         origin, w = np.asarray(z["origin"], float), float(z["voxel_size"])
+        platform = np.asarray(z["platform_vertices"], float) if "platform_vertices" in z.files else np.zeros((0, 3))
     missed = occupied & (growing == 0)
     out: dict[str, object] = {"voxels": int(occupied.sum()), "layers": int(growing.max()), "missed": int(missed.sum()),
                               "pieces": []}
@@ -73,16 +81,30 @@ def missed_voxels(outdir: Path) -> dict[str, object]:
     labels, count = ndimage.label(missed, structure=np.ones((3, 3, 3), bool))
     outer = ~ndimage.binary_erosion(np.pad(occupied, 1), structure=ndimage.generate_binary_structure(3, 1))[1:-1, 1:-1, 1:-1]
     ring = ndimage.binary_dilation(missed, structure=np.ones((3, 3, 3), bool)) & ~missed & (growing > 0)
+    never = np.iinfo(np.int64).max
+    pad = np.pad(np.where(growing > 0, growing, never), 1, constant_values=never)
+    fronts: dict[int, ConvexHull] = {}
     pieces = []
     for k, sl in enumerate(ndimage.find_objects(labels), start=1):
         piece = labels[sl] == k
         ijk = np.argwhere(piece) + [s.start for s in sl]
         z_mm = origin[2] + w * ijk[:, 2]
         around = growing[ndimage.binary_dilation(labels == k, structure=np.ones((3, 3, 3), bool)) & ring]
+        support = np.min([pad[tuple((ijk + 1 + d).T)] for d in _asn_offsets()], axis=0)
+        depths = []
+        for s in np.unique(support[support < never]):
+            if s not in fronts:
+                fronts[s] = ConvexHull(np.vstack([platform, origin + w * np.argwhere((growing > 0) & (growing <= s))]))
+            x = origin + w * ijk[support == s]
+            depths.append(-(x @ fronts[s].equations[:, :3].T + fronts[s].equations[:, 3]).max(axis=1) / w)
+        depth = np.concatenate(depths) if depths else np.zeros(0)
         pieces.append({"size": int(piece.sum()), "z_mm": [round(float(z_mm.min()), 1), round(float(z_mm.max()), 1)],
                        "on_surface": int(outer[tuple(ijk.T)].sum()),
                        "on_platform": bool(z_mm.min() - w / 2 <= 1e-6 * w),
-                       "layers_around": [int(around.min()), int(around.max())] if len(around) else []})
+                       "layers_around": [int(around.min()), int(around.max())] if len(around) else [],
+                       "first_support": int(support.min()) if (support < never).any() else None,
+                       "unsupported": int((support == never).sum()),
+                       "depth_w": [round(float(depth.min()), 2), round(float(depth.max()), 2)] if len(depth) else []})
     out["pieces"] = sorted(pieces, key=lambda p: -p["size"])
     return out
 
@@ -94,7 +116,7 @@ def inside_cross_check(outdir: Path) -> dict[str, object]:
     import trimesh
 
     from curvslice.trimming import SolidDistance
-    from curvslice.verify.layers import TOLERANCE, winding_numbers
+    from curvslice.verify.layers import TOLERANCE, inside_by_ray_parity, winding_numbers
 
     with np.load(outdir / "field.npz", allow_pickle=False) as z:
         w = float(z["voxel_size"])
@@ -104,14 +126,17 @@ def inside_cross_check(outdir: Path) -> dict[str, object]:
     verts = np.concatenate([m.vertices for m in meshes if len(m.vertices)] or [np.zeros((0, 3))])
     layer = np.repeat(numbers, [len(m.vertices) for m in meshes if len(m.vertices)])
     if not len(verts):
-        return {"vertices": 0, "disagree": 0, "layers": [], "max_w": 0.0}
+        return {"vertices": 0, "disagree": 0, "layers": [], "max_w": 0.0, "winding_alone": 0, "winding_alone_layers": []}
     winding = winding_numbers(solid, verts) > 0.5
     signed, _ = SolidDistance.of(solid)(verts)
     differ = (winding != (signed < 0)) & (np.abs(signed) > TOLERANCE * w)
-    return {"vertices": int(len(verts)), "disagree": int(differ.sum()),
-            "layers": sorted({int(k) for k in layer[differ]}),
+    # a third test decides: the pseudonormal's sign fails where ∂H crosses itself (the cow's skin folds
+    # into the solid: its closest sheet lies inside H, or is inverted)
+    parity = inside_by_ray_parity(solid, verts[differ]) if differ.any() else np.zeros(0, bool)
+    alone = parity != winding[differ]  # the winding number against both other tests
+    return {"vertices": int(len(verts)), "disagree": int(differ.sum()), "layers": sorted({int(k) for k in layer[differ]}),
             "max_w": round(float(np.abs(signed[differ]).max() / w), 3) if differ.any() else 0.0,
-            "outside_by_distance": int(np.sum(signed > TOLERANCE * w))}
+            "winding_alone": int(alone.sum()), "winding_alone_layers": sorted({int(k) for k in layer[differ][alone]})}
 
 
 _PERCENT = re.compile(r"(min|max) ([0-9.]+)% \(layer (\d+)\)")
@@ -123,8 +148,10 @@ def run_case(case: Case, model: Path, workdir: Path, quiet: bool = False, reuse:
     instead (an interrupted table resumes where it stopped)."""
     saved = workdir / f"{case.folder}.json"
     if reuse and saved.is_file():
-        return json.loads(saved.read_text())
+        return {**json.loads(saved.read_text()), "reused": True}
     record = _run(case, model, workdir, quiet)
+    record.update(finished=time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+                  load=[round(x, 1) for x in os.getloadavg()])
     saved.write_text(json.dumps(record, indent=1) + "\n")
     return record
 
@@ -168,7 +195,7 @@ def _run(case: Case, model: Path, workdir: Path, quiet: bool) -> dict[str, objec
     t0 = time.perf_counter()
     record["inside"] = inside_cross_check(out)
     record["cross_check_s"] = round(time.perf_counter() - t0, 1)
-    record["passed"] = not record["failed"] and record["inside"]["disagree"] == 0
+    record["passed"] = not record["failed"] and record["inside"]["winding_alone"] == 0
     if not quiet:
         print(f"  {'PASS' if record['passed'] else 'FAIL'}: " + "; ".join(f"{f['check']} {f['value']}" for f in record["failed"]),
               flush=True)
@@ -190,9 +217,13 @@ def _where(field: dict) -> str:
     text = []
     for p in pieces[:3]:
         around = p["layers_around"]
+        depth = p.get("depth_w") or []
         text.append(f"{p['size']} at z {p['z_mm'][0]:g}–{p['z_mm'][1]:g} mm ({p['on_surface']} on ∂H̄"
                     + (", on the platform" if p["on_platform"] else "")
-                    + (f", between layers {around[0]}–{around[1]}" if around else "") + ")")
+                    + (f", between layers {around[0]}–{around[1]}" if around else "")
+                    + (f"; first supportable at layer {p['first_support']}, then already {depth[0]:g}–{depth[1]:g} w "
+                       "inside the front" if depth else "")
+                    + (f"; {p['unsupported']} with no printed neighbour" if p.get("unsupported") else "") + ")")
     return "; ".join(text) + (f"; +{len(pieces) - 3} pieces" if len(pieces) > 3 else "")
 
 
@@ -200,12 +231,19 @@ def markdown(records: list[dict], header: dict[str, object]) -> str:
     """The RESULTS.md section: one row per run, then every failed check with its layers."""
     lines = [SECTION, "",
              f"Refresh with `{header['command']}` (slices into a scratch folder, then `curvslice verify` on it). "
-             f"Run on commit {header['commit']} ({header['date']}); load average {header['load']}. Standard settings: "
+             f"Run on commit {header['commit']} ({header['date']}); load average {header['load']}"
+             + (f"; {sum(bool(r.get('reused')) for r in records)} of {len(records)} runs were recorded by an earlier "
+                "run of the same command (`--reuse`)" if any(r.get("reused") for r in records) else "")
+             + (f"; the runs finished {min(done)} – {max(done)}, {header.get('jobs', 1)} at a time, load average "
+                f"{min(loads):g}–{max(loads):g} (their seconds are wall times on a shared 2-core machine: upper bounds)"
+                if (done := [r["finished"] for r in records if r.get("finished")])
+                and (loads := [r["load"][0] for r in records if r.get("load")]) else "")
+             + ". Standard settings: "
              "the bunny at 1.0 mm, the others at 0.8 mm, default path width (voxel / 0.8); then the kitten at 1.0 / "
              "1.6 / 2.0 mm and at path widths 0.6 and 1.5 voxel widths. 'C++' = the authors' code on the same model and "
              "voxel (DESIGN.md; – where not measured). Coverage and overlap per layer (limits 95 % / 5 %); 'inside test "
              "vs signed distance' = layer vertices farther than 0.05 w from ∂H on which the verifier's winding number "
-             "and the exact signed distance disagree.", "",
+             "and the exact signed distance disagree (the ray parity decides them).", "",
              "| run | voxels | layers | missed (C++) | min coverage (layer) | max overlap (layer) | layers failing "
              "coverage / overlap | other failed checks | inside test vs signed distance | slice / verify s | result |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
@@ -223,7 +261,9 @@ def markdown(records: list[dict], header: dict[str, object]) -> str:
             f"| {cov['percent']:.1f} % ({cov['layer']}) | {ovl['percent']:.1f} % ({ovl['layer']}) "
             f"| {len(cov['failing'])} / {len(ovl['failing'])} "
             f"| {'; '.join(x['check'] + ': ' + x['value'] for x in other) or '–'} "
-            f"| {inside['disagree']} of {inside['vertices']:,} "
+            f"| {inside['disagree']} of {inside['vertices']:,}"
+            + (f" ({inside['winding_alone']} with both others against the winding number)" if inside["disagree"] else "")
+            + " "
             f"| {r['slice_s']:g} / {r['verify_s'] + r['cross_check_s']:g} | {'PASS' if r['passed'] else '**FAIL**'} |")
     lines += ["", "Failed checks and their layers:", ""]
     for r in records:
@@ -234,12 +274,17 @@ def markdown(records: list[dict], header: dict[str, object]) -> str:
             lines.append(f"- {r['title']}: {x['check']} {x['value']}{layers}")
         if r.get("inside", {}).get("disagree"):
             i = r["inside"]
-            lines.append(f"- {r['title']}: inside test vs signed distance: {i['disagree']} vertices up to {i['max_w']} w "
-                         f"off ∂H, layers {', '.join(map(str, i['layers'][:20]))}")
+            lines.append(f"- {r['title']}: winding number vs signed distance differ on {i['disagree']} vertices up to "
+                         f"{i['max_w']} w off ∂H (layers {', '.join(map(str, i['layers'][:20]))}); the ray parity sides "
+                         f"with the winding number on {i['disagree'] - i['winding_alone']}"
+                         + (f", against it on {i['winding_alone']} (layers {', '.join(map(str, i['winding_alone_layers']))})"
+                            if i["winding_alone"] else "") + ": the pseudonormal's sign fails where ∂H crosses itself")
     if not any(r.get("failed") or "crashed" in r or r.get("inside", {}).get("disagree") for r in records):
         lines.append("- none")
-    lines += ["", "Where the missed voxels are (largest connected pieces; 'between layers' = the layers of the printed "
-              "voxels around a piece):", ""]
+    lines += ["", "Where the missed voxels are and why (largest connected pieces; 'between layers' = the layers of the "
+              "printed voxels around a piece; 'first supportable' = the earliest layer with an AM-stable neighbour, "
+              "Constraint 1, and 'inside the front' = the depth of its voxels inside C(layers ≤ that one ∪ T) then: "
+              "at ε = 1 w or more, Constraint 2 forbids them — shadowed before support reached them):", ""]
     lines += [f"- {r['title']}: {r['field']['missed']} missed — {_where(r['field'])}" for r in records
               if "field" in r and r["field"]["missed"]] or ["- none missed"]
     return "\n".join(lines) + "\n"

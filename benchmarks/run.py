@@ -805,9 +805,12 @@ def verify_table(models: tuple[str, ...] | None, scratch: str | None, quiet: boo
     commit = git("rev-parse", "--short", "HEAD") or "unknown"
     if git("status", "--porcelain", "--", "curvslice"):
         commit += " with uncommitted changes to curvslice/"
+    elif last := git("log", "-1", "--format=%h", "--", "curvslice"):
+        commit += f" (curvslice/ last changed in {last})"
     header = {"commit": commit, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
               "load": ", ".join(f"{x:.1f}" for x in os.getloadavg()),
-              "command": "curvslice bench --verify-only" + (f" --models {' '.join(models)}" if models else "")}
+              "command": "curvslice bench --verify-only" + (f" --models {' '.join(models)}" if models else ""),
+              "jobs": jobs}
     todo = bench_verify.cases(models)
     paths = [models_dir() / f"{case.model}.stl" for case in todo]
     if missing := [str(p) for p in paths if not p.is_file()]:

@@ -149,12 +149,20 @@ def test_verify_table_locates_missed_voxels(tmp_path):
     growing = np.where(occupied, 1 + np.arange(8)[None, None, :], 0)
     growing[3, 3, 2:4] = 0  # enclosed pocket between layers 2 and 5
     growing[1, 4, 0] = 0  # bottom row, on the side of the block
-    np.savez(tmp_path / "field.npz", occupied=occupied, growing=growing, origin=np.array([0.0, 0.0, 0.5]), voxel_size=1.0)
+    disc = np.array([[x, y, z] for x in (-20.0, 20.0) for y in (-20.0, 20.0) for z in (-10.0, 0.0)])
+    np.savez(tmp_path / "field.npz", occupied=occupied, growing=growing, origin=np.array([0.0, 0.0, 0.5]), voxel_size=1.0,
+             platform_vertices=disc)
     found = missed_voxels(tmp_path)
     assert found["missed"] == 3 and found["voxels"] == 216 and found["layers"] == 6
     pocket, corner = found["pieces"]
-    assert pocket == {"size": 2, "z_mm": [2.5, 3.5], "on_surface": 0, "on_platform": False, "layers_around": [2, 5]}
+    # the pocket's lower voxel could first rest on layer 2 (z = 1.5 mm), whose front C(layers ≤ 2 ∪ T) is
+    # the slab up to z = 1.5: it lies 1 w above it (depth -1 w: accessible); the upper one rests on layer
+    # 3 beside it, 1 w above that front too
+    assert {k: pocket[k] for k in ("size", "z_mm", "on_surface", "on_platform", "layers_around")} == {
+        "size": 2, "z_mm": [2.5, 3.5], "on_surface": 0, "on_platform": False, "layers_around": [2, 5]}
+    assert pocket["first_support"] == 2 and pocket["unsupported"] == 0 and pocket["depth_w"] == [-1.0, -1.0]
     assert corner["size"] == 1 and corner["on_surface"] == 1 and corner["on_platform"] and corner["layers_around"] == [1, 2]
+    assert corner["first_support"] == 1
 
 
 def test_verify_section_is_spliced_into_results_md(tmp_path):
@@ -167,7 +175,7 @@ def test_verify_section_is_spliced_into_results_md(tmp_path):
            "overlap": {"percent": 6.1, "layer": 18, "failing": [8, 18]},
            "field": {"voxels": 100, "layers": 9, "missed": 1, "pieces": [
                {"size": 1, "z_mm": [0.4, 0.4], "on_surface": 1, "on_platform": True, "layers_around": [1, 1]}]},
-           "inside": {"vertices": 10, "disagree": 0, "layers": [], "max_w": 0.0}}
+           "inside": {"vertices": 10, "disagree": 0, "layers": [], "max_w": 0.0, "winding_alone": 0, "winding_alone_layers": []}}
     md = markdown([run], {"command": "curvslice bench --verify-only", "commit": "abc", "date": "d", "load": "1"})
     row = next(line for line in md.splitlines() if line.startswith("| kitten @0.8 mm |"))
     assert "| 1 (0) **above C++** |" in row and "| 0 / 2 |" in row and row.endswith("**FAIL** |")
