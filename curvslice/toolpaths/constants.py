@@ -141,6 +141,10 @@ OPEN_GAP = 0.65
 #: cuts short, not the single open vertices of a bead's ragged edge.
 GAP_PASS_VERTICES = 3
 GAP_PASS_LENGTH = 0.5
+#: Passes whose ends lie closer than this many widths are joined into one
+#: (:func:`~curvslice.toolpaths.passes.join_touching`): half the narrowest bead, so their caps would
+#: overlap by more than half of it, while the joining link stays within the cap it replaces.
+JOIN_GAP = 0.5 * BEAD_MIN
 #: :func:`~curvslice.toolpaths.passes.uncross`: two segments cross when they come within
 #: ``CROSS_GAP`` widths of each other at inner points, more than ``CROSS_ANGLE`` apart (neighbouring
 #: passes that touch at a shallow angle are not a crossing); candidate pairs lie within the
