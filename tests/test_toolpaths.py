@@ -590,3 +590,51 @@ def test_thin_innermost_ring_of_a_spiral_is_one_centre_pass(monkeypatch):
     monkeypatch.setattr("curvslice.toolpaths.rings.thin_rise", lambda floor, width: 0.0)
     _, (_, loop_overlap) = measure()
     assert loop_overlap > overlap + 0.02
+
+
+def test_slivers_touching_at_a_vertex_are_one_pass(monkeypatch):
+    """Two chains of four sliver diamonds (1.4 × 0.4 w) touching tip to tip at single vertices, off
+    the tips of a larger diamond (homer 0.8 layer 38, a layer pinched by the voxel steps): each
+    sliver is a region of its own, but every chain is printed as one pass through the shared
+    vertices, not as one pass per sliver whose round caps lie over each other there."""
+    width = 1.0
+    parts = [polygon_mesh(sg.Polygon([(-1.5, 0), (0, 1.5), (1.5, 0), (0, -1.5)]), 0.1)]
+    parts += [polygon_mesh(sg.Polygon([(s * (1.5 + 1.4 * i), 0), (s * (2.2 + 1.4 * i), 0.2), (s * (2.9 + 1.4 * i), 0),
+                                       (s * (2.2 + 1.4 * i), -0.2)]), 0.1) for i in range(4) for s in (1, -1)]
+    mesh = trimesh.util.concatenate(parts)
+
+    def chain_pieces():
+        result = layer_paths(mesh, width, min_bead=lambda p: np.full(len(p), 0.4 * width))
+        return [p for p in result.pieces if np.abs(p[:, 0]).min() > 1.2 * width]
+
+    chains = chain_pieces()
+    assert len(chains) == 2 and all(np.ptp(p[:, 0]) > 5.0 * width for p in chains)
+    monkeypatch.setattr("curvslice.toolpaths.plan.join_touching", lambda passes, width: passes)
+    assert len(chain_pieces()) > 2
+
+
+@pytest.mark.parametrize("axes", [(1.6, 0.95), (1.8, 1.05)])
+def test_small_lone_ring_seam_lies_on_its_flank_not_at_a_tip(axes, monkeypatch):
+    """An ellipse a few widths long (fertility 0.8 layer 150, in widths): one lone ring with no
+    straight stretch, printed as one loop. Started from beyond a tip, its seam lies at the ring's
+    straightest point (a flank), where the ends' round caps meet side by side; at the tip nearest the
+    start the fitted ends lay over each other (measured 7.0-8.6 % overlap against 1.2-1.6 %)."""
+    import shapely.affinity
+
+    width = 1.0
+    mesh = polygon_mesh(shapely.affinity.scale(sg.Point(0, 0).buffer(1.0, 64), *axes), 0.1)
+
+    def measure():
+        result = layer_paths(mesh, width, start=np.array([-5.0, 0.0, 0.0]), min_bead=lambda p: np.full(len(p), 0.8 * width))
+        pos = np.vstack(result.pieces)
+        ids = np.repeat(np.arange(len(result.pieces)), [len(p) for p in result.pieces])
+        return result, layer_cover(mesh, pos, ids, width, seed=1, bead=np.concatenate(result.widths))
+
+    result, (coverage, overlap) = measure()
+    assert len(result.pieces) == 1
+    ends = result.pieces[0][[0, -1], :2]
+    assert np.abs(ends[:, 0]).max() < 0.5 * axes[0] and np.all(np.abs(ends[:, 1]) > 0.3)  # on a flank
+    assert coverage >= 0.97 and overlap <= 0.03
+    monkeypatch.setattr("curvslice.toolpaths.spirals._seam", lambda ring, s, width: s)
+    _, (_, tip_overlap) = measure()
+    assert tip_overlap > overlap + 0.03

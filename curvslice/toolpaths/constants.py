@@ -72,7 +72,9 @@ CENTRE_BIN = 0.5
 # ----------------------------------------------------------------------------- Fermat spirals (spirals.py)
 
 #: Rings shorter than this many widths (about 1.3 w across) are printed as one short bead along
-#: their diameter: a loop that small would lay its bead over itself all round.
+#: their diameter: a loop that small would lay its bead over itself all round. A lone ring (a region
+#: of its own) is such a dot only where the widest bead along its diameter reaches the layer's edge
+#: all round (:func:`~curvslice.toolpaths.spirals._dot_reaches`), else a loop.
 DOT_RING = 4.0
 #: A ring is round, and its inside reaches as far as the distance rises above it, when its
 #: isoperimetric ratio 4π·area / length² is at least this (a disc 1, a strip of aspect 1:5 0.44);
@@ -141,6 +143,10 @@ OPEN_GAP = 0.65
 #: cuts short, not the single open vertices of a bead's ragged edge.
 GAP_PASS_VERTICES = 3
 GAP_PASS_LENGTH = 0.5
+#: Passes whose ends lie closer than this many widths are joined into one
+#: (:func:`~curvslice.toolpaths.passes.join_touching`): half the narrowest bead, so their caps would
+#: overlap by more than half of it, while the joining link stays within the cap it replaces.
+JOIN_GAP = 0.5 * BEAD_MIN
 #: :func:`~curvslice.toolpaths.passes.uncross`: two segments cross when they come within
 #: ``CROSS_GAP`` widths of each other at inner points, more than ``CROSS_ANGLE`` apart (neighbouring
 #: passes that touch at a shallow angle are not a crossing); candidate pairs lie within the

@@ -22,7 +22,7 @@ from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import layer_beads
 from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, SUBDIVIDE_EDGE,
                                            THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
-from curvslice.toolpaths.passes import thin_passes, uncross
+from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
 from curvslice.toolpaths.resampling import extrusion_amounts, resample
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands
 from curvslice.toolpaths.spirals import connected_spirals
@@ -188,7 +188,7 @@ def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, f
     out = LayerPaths(pieces=spirals + lines, rings=len(rings), regions=regions + len(lines) + len(thin),
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))
-    passes = [p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
+    passes = join_touching([p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9], width)
     pieces, widths, out.gap_passes = layer_beads(surface, v, f, passes, width, min_bead, fill_gaps)
     orders = [uncross(p, width) for p in pieces]
     pieces, widths = [p[o] for p, o in zip(pieces, orders)], [b[o] for b, o in zip(widths, orders)]
