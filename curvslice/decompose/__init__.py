@@ -23,7 +23,8 @@ from curvslice.decompose.fine_tuning import (Settings, coarse_parts, fine_decomp
                                               replay)
 from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_frame, to_manifold, to_trimesh
 from curvslice.decompose.preview import plot_parts
-from curvslice.decompose.risky import FIRST_LAYER_MM, PLATFORM_CONTACT_MM, lowest_plane, risky_area
+from curvslice.decompose.risky import (FIRST_LAYER_MM, PLATFORM_CONTACT_MM, UNDERSIDE_MM, lowest_plane,
+                                      risky_area, risky_faces, underside_mask)
 from curvslice.decompose.sequence import plan_sequence
 from curvslice.decompose.shape_analysis import coarse_decomposition
 
@@ -40,6 +41,7 @@ class Part:
     risky_area: float  # mm², Eq. 2.1 beyond the base plane
     base_centre: np.ndarray
     risky_area_analysis: float = 0.0  # the same on the analysis copy the search ran on
+    risky_underside: float = 0.0  # mm², the part of risky_area on the model's underside (UNDERSIDE_MM)
 
 
 @dataclass
@@ -100,6 +102,10 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         centre = base.frame() @ np.r_[np.asarray(sec.centroid.coords[0]) if not sec.is_empty else np.zeros(2), 0, 1]
         parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max), centre[:3],
                           part_risk(pieces[i], s.alpha_max)))
+    platform = min(float((p.mesh.vertices @ seq.root_direction).min()) for p in parts)
+    for p in parts:
+        under = risky_faces(p.mesh, p.base, s.alpha_max) & underside_mask(p.mesh, seq.root_direction, platform)
+        p.risky_underside = float(p.mesh.area_faces[under].sum())
     t["replay"] = time.perf_counter()
     order = _print_order(seq.root, {p.index: p.parent for p in parts})
     parts.sort(key=lambda p: order.index(p.index))
@@ -146,6 +152,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
             "volume_mm3": float(p.mesh.volume),
             "risky_area_mm2": p.risky_area,
             "risky_area_analysis_mm2": p.risky_area_analysis,
+            "risky_underside_mm2": p.risky_underside,
             "T_P_E": part_pose(p.base, p.base_centre, root_frame).tolist(),
         })
     one, two = dec.constraint_one_violations(), dec.constraint_two_violations()
@@ -161,6 +168,8 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "analysis_faces": dec.analysis_faces,
         "risky_area_mm2": [q["risky_area_mm2"] for q in parts],
         "risky_area_analysis_mm2": [q["risky_area_analysis_mm2"] for q in parts],
+        "risky_underside_mm2": [q["risky_underside_mm2"] for q in parts],
+        "underside_mm": UNDERSIDE_MM,
         "constraint_one_violations": [list(v) for v in one],
         "constraint_two_violations": two,
         "volume_model_mm3": dec.model_volume,
@@ -169,7 +178,8 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
     }
     (folder / "parts.json").write_text(json.dumps({"root_direction": dec.root_direction.tolist(),
                                                    "alpha_max_deg": report["alpha_max_deg"],
-                                                   "first_layer_mm": FIRST_LAYER_MM, "parts": parts}, indent=1))
+                                                   "first_layer_mm": FIRST_LAYER_MM, "underside_mm": UNDERSIDE_MM,
+                                                   "parts": parts}, indent=1))
     (folder / "report.json").write_text(json.dumps(report, indent=1))
     plot_parts(dec.parts, folder / "parts.png", f"{Path(source).stem}: {len(parts)} parts, sequence 0..{len(parts) - 1}")
     return report
