@@ -261,3 +261,29 @@ def test_platform_clearance_of_a_cylinder_and_a_cone_extruder():
     cone = replace(cell, extruder=(Body("nozzle", "cone", (4.0, 5.0), pose_matrix([0, 0, 2.5], [180, 0, 0])),))
     assert platform_clearance(cone, np.radians(90 - half - 1)) == 0.0
     assert platform_clearance(cone, np.radians(90 - half + 10)) > 0.5
+
+
+def test_robot_stage_on_one_part_of_a_printed_sequence(tmp_path):
+    """`plan_robot(..., parts=[1])`: the top part of the two-part block planned for the UR3 with the root's
+    layers as obstacles; joints.csv indexes the folder's toolpaths.npz (only part 1's rows), and the
+    verifier's robot checks pass but for the root's samples, counted as not realized."""
+    import json
+
+    from curvslice.decompose.printing import plan_robot, print_decomposition
+    from curvslice.verify import verify_outdir
+
+    meshes, _ = _two_part_folder(tmp_path)
+    print_decomposition(tmp_path, voxel=4.0, meshes=meshes)
+    report = plan_robot(tmp_path, "ur3", parts=[1])
+    with np.load(tmp_path / "toolpaths.npz") as z:
+        part = z["part"]
+    from curvslice.exporters.joints_csv import read_joints_csv
+
+    index = read_joints_csv(tmp_path / "joints.csv")["index"]
+    assert report["parts_planned"] == [1] and report["waypoints"] == int((part == 1).sum())
+    assert len(index) and np.all(part[index] == 1) and report["rows"] == len(index)
+    assert json.loads((tmp_path / "report.json").read_text())["stages"] == ["layers", "toolpaths", "robot"]
+    result = {c.name: c for c in verify_outdir(tmp_path) if c.stage == "robot"}
+    realized = result.pop("waypoints realized")
+    assert not realized.passed and realized.value == f"{len(np.unique(index))}/{len(part)}"
+    assert all(c.passed for c in result.values()), {n: (c.value, c.detail) for n, c in result.items() if not c.passed}
