@@ -287,3 +287,47 @@ def test_robot_stage_on_one_part_of_a_printed_sequence(tmp_path):
     realized = result.pop("waypoints realized")
     assert not realized.passed and realized.value == f"{len(np.unique(index))}/{len(part)}"
     assert all(c.passed for c in result.values()), {n: (c.value, c.detail) for n, c in result.items() if not c.passed}
+
+
+def test_extruder_hits_a_point_over_the_tip_but_not_beside_or_below_it():
+    """A cylinder extruder of radius 6 mm from 2 to 12 mm over the tip: a point 5 mm over the tip is
+    inside at every turn, one 5 mm below or 10 mm aside is not; tilted 60° towards +x, the body
+    reaches over a point 8 mm aside and 5 mm up (9.4 mm along the axis, 0.3 mm from it)."""
+    from dataclasses import replace
+
+    from curvslice.decompose.constraints import extruder_hits
+    from curvslice.workcell import Body, load_workcell, pose_matrix
+
+    cell = replace(load_workcell("ur3"), extruder=(Body("body", "cylinder", (6.0, 10.0), pose_matrix([0, 0, 7], [0, 0, 0])),))
+    tip = np.zeros((1, 3))
+    up = np.array([0.0, 0.0, 1.0])
+    pts = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, -5.0], [10.0, 0.0, 3.0]])
+    assert extruder_hits(cell, tip, up, pts[:1]).all()
+    assert not extruder_hits(cell, tip, up, pts[1:]).any()
+    tilted = np.array([np.sin(np.radians(60)), 0.0, np.cos(np.radians(60))])
+    assert not extruder_hits(cell, tip, up, np.array([[8.0, 0.0, 5.0]])).any()
+    assert extruder_hits(cell, tip, tilted, np.array([[8.0, 0.0, 5.0]])).all()
+
+
+def test_printing_order_prints_the_part_leaning_over_its_sibling_first():
+    """A slab with a 40 mm post (part 1) and, 10 mm from it, a low block printed 60° towards the post
+    (part 2): breadth-first order prints the post first and the UR3 extruder then hits it while
+    printing the block; the extruder-aware order prints the block first and neither is blocked."""
+    import trimesh
+
+    from curvslice.decompose.sequence import breadth_first_order, extruder_aware_order
+    from curvslice.workcell import load_workcell
+
+    box = lambda lo, hi: trimesh.creation.box(bounds=[lo, hi])  # noqa: E731
+    meshes = {0: box([-10, -10, 0], [50, 10, 5]), 1: box([20, -5, 5], [30, 5, 45]), 2: box([0, -5, 5], [10, 5, 8])}
+    meshes = {k: m.subdivide_to_size(4.0) for k, m in meshes.items()}
+    dirs = {0: np.array([0.0, 0, 1]), 1: np.array([0.0, 0, 1]), 2: np.array([np.sin(np.radians(60)), 0, np.cos(np.radians(60))])}
+    parent = {0: None, 1: 0, 2: 0}
+    assert breadth_first_order(0, parent) == [0, 1, 2]
+    cell = load_workcell("ur3")
+    order, blocked = extruder_aware_order(0, parent, meshes, dirs, cell)
+    assert order == [0, 2, 1]
+    assert all(b == 0 for b, _ in blocked.values())
+    from curvslice.decompose.constraints import extruder_hits  # in BFS order the post is there first
+
+    assert extruder_hits(cell, meshes[2].vertices, dirs[2], meshes[1].vertices).all(axis=1).any()

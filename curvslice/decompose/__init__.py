@@ -25,7 +25,7 @@ from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_fra
 from curvslice.decompose.preview import plot_parts
 from curvslice.decompose.risky import (FIRST_LAYER_MM, PLATFORM_CONTACT_MM, UNDERSIDE_MM, lowest_plane,
                                       risky_area, risky_faces, underside_mask)
-from curvslice.decompose.sequence import plan_sequence
+from curvslice.decompose.sequence import breadth_first_order, extruder_aware_order, plan_sequence
 from curvslice.decompose.shape_analysis import coarse_decomposition
 
 
@@ -55,6 +55,8 @@ class Decomposition:
     analysis_faces: int = 0
     model_volume: float = 0.0
     workcell: str | None = None  # whose extruder every part clears the platform with (Settings.workcell)
+    #: per part in sequence: nozzle positions (of those sampled) where the extruder meets earlier parts
+    extruder_blocked: list[tuple[int, int]] = field(default_factory=list)
 
     def constraint_one_violations(self) -> list[tuple[int, int]]:
         pairs = constraint_one([p.base for p in self.parts], [p.section for p in self.parts])
@@ -107,26 +109,26 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         under = risky_faces(p.mesh, p.base, s.alpha_max) & underside_mask(p.mesh, seq.root_direction, platform)
         p.risky_underside = float(p.mesh.area_faces[under].sum())
     t["replay"] = time.perf_counter()
-    order = _print_order(seq.root, {p.index: p.parent for p in parts})
+    parent = {p.index: p.parent for p in parts}
+    blocked: dict[int, tuple[int, int]] = {}
+    if s.workcell is None:
+        order = breadth_first_order(seq.root, parent)
+    else:
+        from curvslice.workcell import load_workcell
+
+        order, blocked = extruder_aware_order(seq.root, parent, {p.index: p.mesh for p in parts},
+                                              {p.index: p.base.normal for p in parts}, load_workcell(s.workcell))
+    t["order"] = time.perf_counter()
     parts.sort(key=lambda p: order.index(p.index))
-    names = ["analysis_copy", "phase1", "phase2", "phase3", "replay"]
+    names = ["analysis_copy", "phase1", "phase2", "phase3", "replay", "order"]
     prev = t["start"]
     timings = {}
     for n in names:
         timings[n] = t[n] - prev
         prev = t[n]
-    timings["total"] = t["replay"] - t["start"]
+    timings["total"] = t["order"] - t["start"]
     return Decomposition(parts, seq.root_direction, s.alpha_max, len(coarse.areas), coarse.k, timings, len(simple.faces),
-                         float(full.volume()), s.workcell)
-
-
-def _print_order(root: int, parent: dict[int, int | None]) -> list[int]:
-    """Breadth-first order of the part tree (each part printed after its parent)."""
-    order, frontier = [root], [root]
-    while frontier:
-        frontier = sorted(c for c, p in parent.items() if p in frontier)
-        order += frontier
-    return order
+                         float(full.volume()), s.workcell, [blocked[p.index] for p in parts] if blocked else [])
 
 
 def write_decomposition(dec: Decomposition, folder: Path, source: str, model: trimesh.Trimesh) -> dict:
@@ -161,6 +163,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "source": source,
         "alpha_max_deg": float(np.degrees(dec.alpha_max)),
         "platform_clearance_workcell": dec.workcell,
+        "extruder_blocked_positions": [list(b) for b in dec.extruder_blocked],
         "root_direction": dec.root_direction.tolist(),
         "parts": len(parts),
         "coarse_patches": dec.coarse_patches,
