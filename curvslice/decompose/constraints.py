@@ -147,13 +147,18 @@ def extruder_hits(cell: Workcell, positions: np.ndarray, direction: np.ndarray, 
     reach = max(float(np.linalg.norm(_hull_points(b), axis=1).max()) for b in cell.extruder)
     s_idx, o_idx = np.nonzero((local[:, :, 2] > above) & (np.einsum("soi,soi->so", local, local) <= reach * reach))
     pts = local[s_idx, o_idx]
+    radius = np.hypot(pts[:, 0], pts[:, 1])
     phi = 2 * np.pi * np.arange(turns) / turns
     c, s = np.cos(phi), np.sin(phi)
-    # the obstacles in each turned extruder's frame: rotated by -phi about the axis
-    turned = np.stack([pts[:, None, 0] * c + pts[:, None, 1] * s, -pts[:, None, 0] * s + pts[:, None, 1] * c,
-                       np.broadcast_to(pts[:, None, 2], (len(pts), turns))], axis=-1)
     inside = np.zeros((len(pts), turns), bool)
     for body in cell.extruder:
-        inside |= _inside_body(body, turned)
+        hull = _hull_points(body)  # turns keep a point's height and distance from the axis: a first filter
+        near = np.flatnonzero((pts[:, 2] >= hull[:, 2].min()) & (pts[:, 2] <= hull[:, 2].max())
+                              & (radius <= np.hypot(hull[:, 0], hull[:, 1]).max()))
+        p = pts[near]
+        # the obstacles in each turned extruder's frame: rotated by -phi about the axis
+        turned = np.stack([p[:, None, 0] * c + p[:, None, 1] * s, -p[:, None, 0] * s + p[:, None, 1] * c,
+                           np.broadcast_to(p[:, None, 2], (len(p), turns))], axis=-1)
+        inside[near] |= _inside_body(body, turned)
     np.logical_or.at(out, s_idx, inside)
     return out
