@@ -310,24 +310,26 @@ def test_extruder_hits_a_point_over_the_tip_but_not_beside_or_below_it():
 
 
 def test_printing_order_prints_the_part_leaning_over_its_sibling_first():
-    """A slab with a 40 mm post (part 1) and, 10 mm from it, a low block printed 60° towards the post
-    (part 2): breadth-first order prints the post first and the UR3 extruder then hits it while
-    printing the block; the extruder-aware order prints the block first and neither is blocked."""
+    """A slab with a 40 mm post (part 1) and, on a pedestal 10 mm from it, a low block printed 35°
+    towards the post (part 2): breadth-first order prints the post first and the UR3 extruder's body
+    then hits it while printing the block; the extruder-aware order prints the block first and
+    neither is blocked."""
     import trimesh
 
+    from curvslice.decompose.constraints import extruder_hits
     from curvslice.decompose.sequence import breadth_first_order, extruder_aware_order
     from curvslice.workcell import load_workcell
 
     box = lambda lo, hi: trimesh.creation.box(bounds=[lo, hi])  # noqa: E731
-    meshes = {0: box([-10, -10, 0], [50, 10, 5]), 1: box([20, -5, 5], [30, 5, 45]), 2: box([0, -5, 5], [10, 5, 8])}
+    root = trimesh.util.concatenate([box([-10, -10, 0], [50, 10, 5]), box([0, -5, 5], [10, 5, 15])])
+    meshes = {0: root, 1: box([20, -5, 5], [30, 5, 45]), 2: box([0, -5, 15], [10, 5, 18])}
     meshes = {k: m.subdivide_to_size(4.0) for k, m in meshes.items()}
-    dirs = {0: np.array([0.0, 0, 1]), 1: np.array([0.0, 0, 1]), 2: np.array([np.sin(np.radians(60)), 0, np.cos(np.radians(60))])}
+    tilt = np.radians(35)
+    dirs = {0: np.array([0.0, 0, 1]), 1: np.array([0.0, 0, 1]), 2: np.array([np.sin(tilt), 0, np.cos(tilt)])}
     parent = {0: None, 1: 0, 2: 0}
     assert breadth_first_order(0, parent) == [0, 1, 2]
     cell = load_workcell("ur3")
     order, blocked = extruder_aware_order(0, parent, meshes, dirs, cell)
     assert order == [0, 2, 1]
-    assert all(b == 0 for b, _ in blocked.values())
-    from curvslice.decompose.constraints import extruder_hits  # in BFS order the post is there first
-
-    assert extruder_hits(cell, meshes[2].vertices, dirs[2], meshes[1].vertices).all(axis=1).any()
+    assert all(b == 0 for b, _ in blocked.values()), blocked
+    assert extruder_hits(cell, meshes[2].vertices, dirs[2], meshes[1].vertices).all(axis=1).any()  # BFS order

@@ -158,7 +158,8 @@ def extruder_aware_order(root: int, parent: dict[int, int | None], meshes: dict[
     their material, and a position is *blocked* when every turn of the extruder about its axis holds
     such material (:func:`extruder_hits`). Greedy: among the parts whose parent is printed, the next
     is the one whose own blocked positions plus those it would cause to every unrelated part still to
-    print are fewest (ties: breadth-first order). Not in the thesis (its BFS ignores the extruder,
+    print are fewest (ties: breadth-first order; an ancestor, printed before in any order, counts
+    alike for every candidate). Not in the thesis (its BFS ignores the extruder,
     §2.6): on the bunny it prints first the sibling that leans over the other (in BFS order the heater
     block hit the part printed before). Returns the order and each part's (blocked, sampled)
     positions in it."""
@@ -174,7 +175,7 @@ def extruder_aware_order(root: int, parent: dict[int, int | None], meshes: dict[
         obs[k] = m.vertices[first]
     anc = {k: _ancestors(k, parent) for k in meshes}
     hits = {(k, j): extruder_hits(cell, pos[k], directions[k], obs[j]) for k in meshes for j in meshes
-            if k != j and j not in anc[k] and k not in anc[j]}
+            if k != j and k not in anc[j]}  # not with its descendants, printed after it in any order
 
     def blocked(k: int, before: list[int]) -> int:
         h = [hits[k, j] for j in before if (k, j) in hits]
