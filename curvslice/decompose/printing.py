@@ -156,8 +156,7 @@ def print_decomposition(folder: Path, voxel: float = 1.0, layer_height: float | 
     return sections
 
 
-def plan_robot(folder: Path, robot: str, quiet: bool = True, parts: list[int] | None = None,
-               executor=None) -> dict:
+def plan_robot(folder: Path, robot: str, quiet: bool = True, parts: list[int] | None = None) -> dict:
     """The robot stage of `curvslice slice` (:func:`curvslice.pipeline.run_robot`) on a printed
     decomposition folder: one joint trajectory and one program for the whole sequence, each layer
     checked against the platform and the layers printed before it (all parts in the platform frame
@@ -189,9 +188,7 @@ def plan_robot(folder: Path, robot: str, quiet: bool = True, parts: list[int] | 
     results = {"field": FieldResult(solid, np.asarray(disc_platform(solid).vertices, float), None, None, None, {}),
                "layers": LayersResult(load_layers(folder), report["layers"]),
                "toolpaths": ToolpathsResult(tp, ToolpathSettings(path_width=report["toolpaths"]["path_width_mm"]), {})}
-    ctx = Context(solid, settings, results, quiet=quiet) if executor is None else \
-        Context(solid, settings, results, quiet=quiet, executor=executor)
-    robot_result = run_robot(ctx)
+    robot_result = run_robot(Context(solid, settings, results, quiet=quiet))
     motion = robot_result.motion
     motion.index = rows[motion.index]  # back to the rows of the folder's toolpaths.npz
     for layer in motion.layers:
