@@ -159,15 +159,14 @@ def print_decomposition(folder: Path, voxel: float = 1.0, layer_height: float | 
 def plan_robot(folder: Path, robot: str, quiet: bool = True, parts: list[int] | None = None) -> dict:
     """The robot stage of `curvslice slice` (:func:`curvslice.pipeline.run_robot`) on a printed
     decomposition folder: one joint trajectory and one program for the whole sequence, each layer
-    checked against the platform and the layers printed before it (all parts in the platform frame
-    E, where the workcell's platform top is z = 0). ``parts`` (sequence numbers) plans only those
+    checked against the workcell's platform and the layers printed before it (all parts in the platform
+    frame E, where the platform top is z = 0). ``parts`` (sequence numbers) plans only those
     parts' samples -- every earlier layer still an obstacle -- and the files index the full
     ``toolpaths.npz``, so the verifier counts the other parts' samples as not realized. Writes
     ``joints.csv``, ``workcell.json`` and the controller programs, adds the ``robot`` section (with
     ``parts_planned``) and stage to ``report.json`` and returns it."""
     from curvslice.pipeline import (Context, FieldResult, LayersResult, Settings, ToolpathsResult, load_toolpaths,
                                     run_robot, save_robot)
-    from curvslice.platform import disc_platform
     from curvslice.working_surfaces import load_layers
 
     folder = Path(folder)
@@ -185,7 +184,8 @@ def plan_robot(folder: Path, robot: str, quiet: bool = True, parts: list[int] | 
     rows = np.flatnonzero(np.isin(part, planned))
     tp = replace(full, **{k: getattr(full, k)[rows] for k in
                           ("positions", "normals", "layer", "path", "extrusion", "thickness", "feed", "bead")})
-    results = {"field": FieldResult(solid, np.asarray(disc_platform(solid).vertices, float), None, None, None, {}),
+    # the workcell's own platform disc (no platform_vertices), the one `curvslice verify` checks a folder without field.npz
+    results = {"field": FieldResult(solid, None, None, None, None, {}),
                "layers": LayersResult(load_layers(folder), report["layers"]),
                "toolpaths": ToolpathsResult(tp, ToolpathSettings(path_width=report["toolpaths"]["path_width_mm"]), {})}
     robot_result = run_robot(Context(solid, settings, results, quiet=quiet))
