@@ -333,3 +333,18 @@ def test_printing_order_prints_the_part_leaning_over_its_sibling_first():
     assert order == [0, 2, 1]
     assert all(b == 0 for b, _ in blocked.values()), blocked
     assert extruder_hits(cell, meshes[2].vertices, dirs[2], meshes[1].vertices).all(axis=1).any()  # BFS order
+
+
+def test_fabrication_minutes_of_a_square_and_a_jump(tmp_path):
+    """Table 2.1's fabrication time from toolpaths.npz: a 10 mm square at the G-code feed (600 mm/min)
+    is 4 s, a 50 mm jump to the next path at the UR3 cell's travel speed 50 mm/s is 1 s more."""
+    from benchmarks.bench_decompose import fabrication_minutes
+    from curvslice.workcell import load_workcell
+
+    square = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0], [0, 0, 0]], float)
+    positions = np.vstack([square, square[-1] + [0, 50, 0]])
+    np.savez(tmp_path / "toolpaths.npz", positions=positions, path=np.array([0, 0, 0, 0, 0, 1]),
+             feed=np.full(6, 600.0))
+    cell = load_workcell("ur3")
+    assert cell.travel_speed == 50.0  # the figure the expectation uses
+    assert fabrication_minutes(tmp_path) == pytest.approx((40 / 10 + 50 / 50) / 60)
