@@ -45,3 +45,11 @@ AUTHORS_CPP: dict[tuple[str, float, str], dict[str, float | None]] = {
     ("rocker-arm", 0.8, "pg-sp-gcfa"): {"voxels": 60_454, "peeling": 2.5, "growing": 14.4, "missed": 3, "layers": 117, "trimming": 117.0, "written": 101, "extracted": 115},
     ("fandisk", 0.8, "pg-sp-gcfa"): {"voxels": 73_572, "peeling": 0.6, "growing": 321.7, "missed": 3, "layers": 97, "trimming": 56.9, "written": 93, "extracted": 95},
 }
+
+#: Thesis Table 2.1 (§2.5, RoboFDM; machine not stated): facets of the decomposed model, decomposition
+#: seconds, fabrication minutes on the UR3 cell.
+TABLE_2_1: dict[str, dict[str, float]] = {
+    "bunny": {"facets": 10_000, "decomposition": 171.0, "fabrication_min": 152.0},
+    "armadillo": {"facets": 17_142, "decomposition": 269.0, "fabrication_min": 263.0},
+    "hanging-ball": {"facets": 5_984, "decomposition": 156.0, "fabrication_min": 85.0},
+}

@@ -261,3 +261,90 @@ def test_platform_clearance_of_a_cylinder_and_a_cone_extruder():
     cone = replace(cell, extruder=(Body("nozzle", "cone", (4.0, 5.0), pose_matrix([0, 0, 2.5], [180, 0, 0])),))
     assert platform_clearance(cone, np.radians(90 - half - 1)) == 0.0
     assert platform_clearance(cone, np.radians(90 - half + 10)) > 0.5
+
+
+def test_robot_stage_on_one_part_of_a_printed_sequence(tmp_path):
+    """`plan_robot(..., parts=[1])`: the top part of the two-part block planned for the UR3 with the root's
+    layers as obstacles; joints.csv indexes the folder's toolpaths.npz (only part 1's rows), and the
+    verifier's robot checks pass but for the root's samples, counted as not realized."""
+    import json
+
+    from curvslice.decompose.printing import plan_robot, print_decomposition
+    from curvslice.verify import verify_outdir
+
+    meshes, _ = _two_part_folder(tmp_path)
+    print_decomposition(tmp_path, voxel=4.0, meshes=meshes)
+    report = plan_robot(tmp_path, "ur3", parts=[1])
+    with np.load(tmp_path / "toolpaths.npz") as z:
+        part = z["part"]
+    from curvslice.exporters.joints_csv import read_joints_csv
+
+    index = read_joints_csv(tmp_path / "joints.csv")["index"]
+    assert report["parts_planned"] == [1] and report["waypoints"] == int((part == 1).sum())
+    assert len(index) and np.all(part[index] == 1) and report["rows"] == len(index)
+    assert json.loads((tmp_path / "report.json").read_text())["stages"] == ["layers", "toolpaths", "robot"]
+    result = {c.name: c for c in verify_outdir(tmp_path) if c.stage == "robot"}
+    realized = result.pop("waypoints realized")
+    assert not realized.passed and realized.value == f"{len(np.unique(index))}/{len(part)}"
+    assert all(c.passed for c in result.values()), {n: (c.value, c.detail) for n, c in result.items() if not c.passed}
+
+
+def test_extruder_hits_a_point_over_the_tip_but_not_beside_or_below_it():
+    """A cylinder extruder of radius 6 mm from 2 to 12 mm over the tip: a point 5 mm over the tip is
+    inside at every turn, one 5 mm below or 10 mm aside is not; tilted 60° towards +x, the body
+    reaches over a point 8 mm aside and 5 mm up (9.4 mm along the axis, 0.3 mm from it)."""
+    from dataclasses import replace
+
+    from curvslice.decompose.constraints import extruder_hits
+    from curvslice.workcell import Body, load_workcell, pose_matrix
+
+    cell = replace(load_workcell("ur3"), extruder=(Body("body", "cylinder", (6.0, 10.0), pose_matrix([0, 0, 7], [0, 0, 0])),))
+    tip = np.zeros((1, 3))
+    up = np.array([0.0, 0.0, 1.0])
+    pts = np.array([[0.0, 0.0, 5.0], [0.0, 0.0, -5.0], [10.0, 0.0, 3.0]])
+    assert extruder_hits(cell, tip, up, pts[:1]).all()
+    assert not extruder_hits(cell, tip, up, pts[1:]).any()
+    tilted = np.array([np.sin(np.radians(60)), 0.0, np.cos(np.radians(60))])
+    assert not extruder_hits(cell, tip, up, np.array([[8.0, 0.0, 5.0]])).any()
+    assert extruder_hits(cell, tip, tilted, np.array([[8.0, 0.0, 5.0]])).all()
+
+
+def test_printing_order_prints_the_part_leaning_over_its_sibling_first():
+    """A slab with a 40 mm post (part 1) and, on a pedestal 10 mm from it, a low block printed 35°
+    towards the post (part 2): breadth-first order prints the post first and the UR3 extruder's body
+    then hits it while printing the block; the extruder-aware order prints the block first and
+    neither is blocked."""
+    import trimesh
+
+    from curvslice.decompose.constraints import extruder_hits
+    from curvslice.decompose.sequence import breadth_first_order, extruder_aware_order
+    from curvslice.workcell import load_workcell
+
+    box = lambda lo, hi: trimesh.creation.box(bounds=[lo, hi])  # noqa: E731
+    root = trimesh.util.concatenate([box([-10, -10, 0], [50, 10, 5]), box([0, -5, 5], [10, 5, 15])])
+    meshes = {0: root, 1: box([20, -5, 5], [30, 5, 45]), 2: box([0, -5, 15], [10, 5, 18])}
+    meshes = {k: m.subdivide_to_size(4.0) for k, m in meshes.items()}
+    tilt = np.radians(35)
+    dirs = {0: np.array([0.0, 0, 1]), 1: np.array([0.0, 0, 1]), 2: np.array([np.sin(tilt), 0, np.cos(tilt)])}
+    parent = {0: None, 1: 0, 2: 0}
+    assert breadth_first_order(0, parent) == [0, 1, 2]
+    cell = load_workcell("ur3")
+    order, blocked = extruder_aware_order(0, parent, meshes, dirs, cell)
+    assert order == [0, 2, 1]
+    assert all(b == 0 for b, _ in blocked.values()), blocked
+    assert extruder_hits(cell, meshes[2].vertices, dirs[2], meshes[1].vertices).all(axis=1).any()  # BFS order
+
+
+def test_fabrication_minutes_of_a_square_and_a_jump(tmp_path):
+    """Table 2.1's fabrication time from toolpaths.npz: a 10 mm square at the G-code feed (600 mm/min)
+    is 4 s, a 50 mm jump to the next path at the UR3 cell's travel speed 50 mm/s is 1 s more."""
+    from benchmarks.bench_decompose import fabrication_minutes
+    from curvslice.workcell import load_workcell
+
+    square = np.array([[0, 0, 0], [10, 0, 0], [10, 10, 0], [0, 10, 0], [0, 0, 0]], float)
+    positions = np.vstack([square, square[-1] + [0, 50, 0]])
+    np.savez(tmp_path / "toolpaths.npz", positions=positions, path=np.array([0, 0, 0, 0, 0, 1]),
+             feed=np.full(6, 600.0))
+    cell = load_workcell("ur3")
+    assert cell.travel_speed == 50.0  # the figure the expectation uses
+    assert fabrication_minutes(tmp_path) == pytest.approx((40 / 10 + 50 / 50) / 60)

@@ -15,7 +15,7 @@ import numpy as np
 
 from curvslice.decompose import decompose, write_decomposition
 from curvslice.decompose.fine_tuning import Settings
-from curvslice.decompose.printing import print_decomposition
+from curvslice.decompose.printing import plan_robot, print_decomposition
 from curvslice.decompose.risky import ALPHA_MAX_DEG
 from curvslice.errors import CurvsliceError
 from curvslice.outdir import atomic_folder
@@ -46,6 +46,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--layer-height", type=float, default=None, help="with --print: layer height, mm (default: --voxel)")
     p.add_argument("--path-width", type=float, default=None,
                    help="with --print: path width, mm (default: voxel / 0.8, as `curvslice slice`)")
+    p.add_argument("--robot", default=None,
+                   help="with --print: plan the arm's motion for the whole sequence (workcell name or JSON, e.g. ur3; "
+                        "the robot stage of `curvslice slice`: joints.csv, programs, workcell.json)")
+    p.add_argument("--robot-parts", type=int, nargs="+", default=None, metavar="K",
+                   help="with --robot: plan only these parts (printing sequence numbers), the earlier parts' layers "
+                        "still obstacles; the others' samples stay unrealized in the verifier's count")
     p.add_argument("--force", action="store_true", help="replace an existing output folder")
     p.set_defaults(run=run)
 
@@ -57,6 +63,12 @@ def run(args: argparse.Namespace) -> int:
         value = getattr(args, name)
         if value is not None and not (np.isfinite(value) and 0 < value <= 50):
             raise CurvsliceError(f"--{name.replace('_', '-')} must be in (0, 50] mm (got {value})")
+    if (args.robot or args.robot_parts) and not args.print_parts:
+        raise CurvsliceError("--robot and --robot-parts need --print (the robot follows the printed tool-paths)")
+    if args.robot_parts and not args.robot:
+        raise CurvsliceError("--robot-parts needs --robot")
+    if args.robot:
+        load_workcell(args.robot)
     solid, _ = load_solid(args.model)
     cell = None if args.workcell == "none" else args.workcell
     if cell is not None:
@@ -68,6 +80,11 @@ def run(args: argparse.Namespace) -> int:
         if args.print_parts:
             report.update(print_decomposition(tmp, args.voxel, args.layer_height, args.path_width,
                                               meshes=[p.mesh for p in dec.parts], workcell=cell or "ur3"))
+            if args.robot:
+                bad = sorted(set(args.robot_parts or []) - set(range(len(dec.parts))))
+                if bad:
+                    raise CurvsliceError(f"--robot-parts {bad}: the decomposition has parts 0..{len(dec.parts) - 1}")
+                report["robot"] = plan_robot(tmp, args.robot, quiet=False, parts=args.robot_parts)
     print(f"{report['parts']} parts in {report['timings_s']['total']:.1f} s; risky area per part (mm²): "
           + ", ".join(f"{a:.1f}" for a in report["risky_area_mm2"]))
     print(f"Constraint I violations: {report['constraint_one_violations'] or 'none'}; "
@@ -76,5 +93,9 @@ def run(args: argparse.Namespace) -> int:
         tp = report["toolpaths"]
         print(f"printed: {report['layers']['count']} planar layers, {tp['samples']} samples, {tp['pieces']} pieces "
               f"({report['layers']['timings_s']['layers']:.1f} s layers, {tp['timings_s']['toolpaths']:.1f} s tool-paths)")
+    if args.robot:
+        r = report["robot"]
+        print(f"robot ({r['workcell']}, parts {r['parts_planned']}): {r['rows']}/{r['waypoints']} waypoints planned, "
+              f"{r['skipped']} skipped ({r['skipped_reasons'] or 'none'}), {r['timings_s']['robot']:.1f} s")
     print(f"wrote {args.out}")
     return 0

@@ -23,8 +23,9 @@ from curvslice.decompose.fine_tuning import (Settings, coarse_parts, fine_decomp
                                               replay)
 from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_frame, to_manifold, to_trimesh
 from curvslice.decompose.preview import plot_parts
-from curvslice.decompose.risky import FIRST_LAYER_MM, PLATFORM_CONTACT_MM, lowest_plane, risky_area
-from curvslice.decompose.sequence import plan_sequence
+from curvslice.decompose.risky import (FIRST_LAYER_MM, PLATFORM_CONTACT_MM, UNDERSIDE_MM, lowest_plane,
+                                      risky_area, risky_faces, underside_mask)
+from curvslice.decompose.sequence import breadth_first_order, extruder_aware_order, plan_sequence
 from curvslice.decompose.shape_analysis import coarse_decomposition
 
 
@@ -40,6 +41,7 @@ class Part:
     risky_area: float  # mm², Eq. 2.1 beyond the base plane
     base_centre: np.ndarray
     risky_area_analysis: float = 0.0  # the same on the analysis copy the search ran on
+    risky_underside: float = 0.0  # mm², the part of risky_area on the model's underside (UNDERSIDE_MM)
 
 
 @dataclass
@@ -53,6 +55,8 @@ class Decomposition:
     analysis_faces: int = 0
     model_volume: float = 0.0
     workcell: str | None = None  # whose extruder every part clears the platform with (Settings.workcell)
+    #: per part in sequence: nozzle positions (of those sampled) where the extruder meets earlier parts
+    extruder_blocked: list[tuple[int, int]] = field(default_factory=list)
 
     def constraint_one_violations(self) -> list[tuple[int, int]]:
         pairs = constraint_one([p.base for p in self.parts], [p.section for p in self.parts])
@@ -100,27 +104,31 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         centre = base.frame() @ np.r_[np.asarray(sec.centroid.coords[0]) if not sec.is_empty else np.zeros(2), 0, 1]
         parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max), centre[:3],
                           part_risk(pieces[i], s.alpha_max)))
+    platform = min(float((p.mesh.vertices @ seq.root_direction).min()) for p in parts)
+    for p in parts:
+        under = risky_faces(p.mesh, p.base, s.alpha_max) & underside_mask(p.mesh, seq.root_direction, platform)
+        p.risky_underside = float(p.mesh.area_faces[under].sum())
     t["replay"] = time.perf_counter()
-    order = _print_order(seq.root, {p.index: p.parent for p in parts})
+    parent = {p.index: p.parent for p in parts}
+    blocked: dict[int, tuple[int, int]] = {}
+    if s.workcell is None:
+        order = breadth_first_order(seq.root, parent)
+    else:
+        from curvslice.workcell import load_workcell
+
+        order, blocked = extruder_aware_order(seq.root, parent, {p.index: p.mesh for p in parts},
+                                              {p.index: p.base.normal for p in parts}, load_workcell(s.workcell))
+    t["order"] = time.perf_counter()
     parts.sort(key=lambda p: order.index(p.index))
-    names = ["analysis_copy", "phase1", "phase2", "phase3", "replay"]
+    names = ["analysis_copy", "phase1", "phase2", "phase3", "replay", "order"]
     prev = t["start"]
     timings = {}
     for n in names:
         timings[n] = t[n] - prev
         prev = t[n]
-    timings["total"] = t["replay"] - t["start"]
+    timings["total"] = t["order"] - t["start"]
     return Decomposition(parts, seq.root_direction, s.alpha_max, len(coarse.areas), coarse.k, timings, len(simple.faces),
-                         float(full.volume()), s.workcell)
-
-
-def _print_order(root: int, parent: dict[int, int | None]) -> list[int]:
-    """Breadth-first order of the part tree (each part printed after its parent)."""
-    order, frontier = [root], [root]
-    while frontier:
-        frontier = sorted(c for c, p in parent.items() if p in frontier)
-        order += frontier
-    return order
+                         float(full.volume()), s.workcell, [blocked[p.index] for p in parts] if blocked else [])
 
 
 def write_decomposition(dec: Decomposition, folder: Path, source: str, model: trimesh.Trimesh) -> dict:
@@ -146,6 +154,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
             "volume_mm3": float(p.mesh.volume),
             "risky_area_mm2": p.risky_area,
             "risky_area_analysis_mm2": p.risky_area_analysis,
+            "risky_underside_mm2": p.risky_underside,
             "T_P_E": part_pose(p.base, p.base_centre, root_frame).tolist(),
         })
     one, two = dec.constraint_one_violations(), dec.constraint_two_violations()
@@ -154,6 +163,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "source": source,
         "alpha_max_deg": float(np.degrees(dec.alpha_max)),
         "platform_clearance_workcell": dec.workcell,
+        "extruder_blocked_positions": [list(b) for b in dec.extruder_blocked],
         "root_direction": dec.root_direction.tolist(),
         "parts": len(parts),
         "coarse_patches": dec.coarse_patches,
@@ -161,6 +171,8 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "analysis_faces": dec.analysis_faces,
         "risky_area_mm2": [q["risky_area_mm2"] for q in parts],
         "risky_area_analysis_mm2": [q["risky_area_analysis_mm2"] for q in parts],
+        "risky_underside_mm2": [q["risky_underside_mm2"] for q in parts],
+        "underside_mm": UNDERSIDE_MM,
         "constraint_one_violations": [list(v) for v in one],
         "constraint_two_violations": two,
         "volume_model_mm3": dec.model_volume,
@@ -169,7 +181,8 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
     }
     (folder / "parts.json").write_text(json.dumps({"root_direction": dec.root_direction.tolist(),
                                                    "alpha_max_deg": report["alpha_max_deg"],
-                                                   "first_layer_mm": FIRST_LAYER_MM, "parts": parts}, indent=1))
+                                                   "first_layer_mm": FIRST_LAYER_MM, "underside_mm": UNDERSIDE_MM,
+                                                   "parts": parts}, indent=1))
     (folder / "report.json").write_text(json.dumps(report, indent=1))
     plot_parts(dec.parts, folder / "parts.png", f"{Path(source).stem}: {len(parts)} parts, sequence 0..{len(parts) - 1}")
     return report

@@ -117,3 +117,48 @@ def clears_platform(vertices: np.ndarray, normal: np.ndarray, root_direction: np
         return True
     tilt = float(np.arccos(np.clip(np.asarray(normal) @ np.asarray(root_direction), -1.0, 1.0)))
     return float((np.asarray(vertices) @ root_direction).min() - platform) >= float(np.interp(tilt, *table)) - 1e-6
+
+
+def _inside_body(body: Body, x: np.ndarray) -> np.ndarray:
+    """Points ``x`` (..., 3) of the body's parent frame inside the body (box; cylinder; cone with its
+    base at -length/2 and apex at +length/2, as :mod:`curvslice.workcell` draws them)."""
+    local = (x - body.pose[:3, 3]) @ body.pose[:3, :3]
+    if body.kind == "box":
+        return np.all(np.abs(local) <= np.asarray(body.dims) / 2, axis=-1)
+    r, h = body.dims[0], body.dims[1]
+    radial, z = np.hypot(local[..., 0], local[..., 1]), local[..., 2]
+    reach = r if body.kind == "cylinder" else r * (0.5 - z / h)
+    return (np.abs(z) <= h / 2) & (radial <= reach)
+
+
+def extruder_hits(cell: Workcell, positions: np.ndarray, direction: np.ndarray, obstacles: np.ndarray,
+                  turns: int = 12, above: float = 0.5) -> np.ndarray:
+    """(positions, turns) bool: with its tip at a position, its axis along ``direction`` and turned by
+    2πj/``turns`` about it, some body of the workcell's extruder holds a point of ``obstacles``
+    (material printed before) higher than ``above`` mm over the tip (the tip itself rests on the
+    layer below). Not in the thesis, whose sequence keeps only Constraints I and II (§2.6 names the gap)."""
+    from curvslice.decompose.parts import plane_frame
+
+    out = np.zeros((len(positions), turns), bool)
+    if not len(positions) or not len(obstacles):
+        return out
+    R = plane_frame(np.asarray(direction, float), np.zeros(3))[:3, :3]
+    local = (np.asarray(obstacles)[None, :, :] - np.asarray(positions)[:, None, :]) @ R  # (S, O, 3) in N, untilted
+    reach = max(float(np.linalg.norm(_hull_points(b), axis=1).max()) for b in cell.extruder)
+    s_idx, o_idx = np.nonzero((local[:, :, 2] > above) & (np.einsum("soi,soi->so", local, local) <= reach * reach))
+    pts = local[s_idx, o_idx]
+    radius = np.hypot(pts[:, 0], pts[:, 1])
+    phi = 2 * np.pi * np.arange(turns) / turns
+    c, s = np.cos(phi), np.sin(phi)
+    inside = np.zeros((len(pts), turns), bool)
+    for body in cell.extruder:
+        hull = _hull_points(body)  # turns keep a point's height and distance from the axis: a first filter
+        near = np.flatnonzero((pts[:, 2] >= hull[:, 2].min()) & (pts[:, 2] <= hull[:, 2].max())
+                              & (radius <= np.hypot(hull[:, 0], hull[:, 1]).max()))
+        p = pts[near]
+        # the obstacles in each turned extruder's frame: rotated by -phi about the axis
+        turned = np.stack([p[:, None, 0] * c + p[:, None, 1] * s, -p[:, None, 0] * s + p[:, None, 1] * c,
+                           np.broadcast_to(p[:, None, 2], (len(p), turns))], axis=-1)
+        inside[near] |= _inside_body(body, turned)
+    np.logical_or.at(out, s_idx, inside)
+    return out

@@ -156,15 +156,17 @@ def print_decomposition(folder: Path, voxel: float = 1.0, layer_height: float | 
     return sections
 
 
-def plan_robot(folder: Path, robot: str, quiet: bool = True) -> dict:
+def plan_robot(folder: Path, robot: str, quiet: bool = True, parts: list[int] | None = None) -> dict:
     """The robot stage of `curvslice slice` (:func:`curvslice.pipeline.run_robot`) on a printed
     decomposition folder: one joint trajectory and one program for the whole sequence, each layer
-    checked against the platform and the layers printed before it (all parts in the platform frame
-    E, where the workcell's platform top is z = 0). Writes ``joints.csv``, ``workcell.json`` and the
-    controller programs, adds the ``robot`` section and stage to ``report.json`` and returns it."""
+    checked against the workcell's platform and the layers printed before it (all parts in the platform
+    frame E, where the platform top is z = 0). ``parts`` (sequence numbers) plans only those
+    parts' samples -- every earlier layer still an obstacle -- and the files index the full
+    ``toolpaths.npz``, so the verifier counts the other parts' samples as not realized. Writes
+    ``joints.csv``, ``workcell.json`` and the controller programs, adds the ``robot`` section (with
+    ``parts_planned``) and stage to ``report.json`` and returns it."""
     from curvslice.pipeline import (Context, FieldResult, LayersResult, Settings, ToolpathsResult, load_toolpaths,
                                     run_robot, save_robot)
-    from curvslice.platform import disc_platform
     from curvslice.working_surfaces import load_layers
 
     folder = Path(folder)
@@ -175,12 +177,26 @@ def plan_robot(folder: Path, robot: str, quiet: bool = True) -> dict:
     solid.apply_transform(np.linalg.inv(plane_frame(np.asarray(root["build_direction"], float),
                                                     np.asarray(root["base_centre_mm"], float))))
     settings = Settings(robot=robot, voxel=float(report["layers"]["voxel_mm"]))
-    tp = load_toolpaths(folder, report["toolpaths"])
-    results = {"field": FieldResult(solid, np.asarray(disc_platform(solid).vertices, float), None, None, None, {}),
+    full = load_toolpaths(folder, report["toolpaths"])
+    with np.load(folder / "toolpaths.npz") as z:
+        part = z["part"]
+    planned = sorted(set(part.tolist())) if parts is None else sorted(set(parts))
+    rows = np.flatnonzero(np.isin(part, planned))
+    tp = replace(full, **{k: getattr(full, k)[rows] for k in
+                          ("positions", "normals", "layer", "path", "extrusion", "thickness", "feed", "bead")})
+    # the workcell's own platform disc (no platform_vertices), the one `curvslice verify` checks a folder without field.npz
+    results = {"field": FieldResult(solid, None, None, None, None, {}),
                "layers": LayersResult(load_layers(folder), report["layers"]),
                "toolpaths": ToolpathsResult(tp, ToolpathSettings(path_width=report["toolpaths"]["path_width_mm"]), {})}
     robot_result = run_robot(Context(solid, settings, results, quiet=quiet))
+    motion = robot_result.motion
+    motion.index = rows[motion.index]  # back to the rows of the folder's toolpaths.npz
+    for layer in motion.layers:
+        for entry in layer["skipped_rows"]:
+            entry["row"] = int(rows[entry["row"]])
+    results["toolpaths"] = ToolpathsResult(full, results["toolpaths"].settings, {})
     save_robot(robot_result, folder, settings, results)
+    robot_result.report.update(parts_planned=planned, waypoints_all_parts=len(part))
     report["robot"] = robot_result.report
     report["stages"] = [*report.get("stages", []), "robot"]
     (folder / "report.json").write_text(json.dumps(report, indent=1))

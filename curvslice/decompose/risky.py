@@ -28,6 +28,11 @@ BASE_TOLERANCE_MM = 1e-2
 FIRST_LAYER_MM = 0.5
 #: The root stands on the platform: its faces within its first layer are the platform contact.
 PLATFORM_CONTACT_MM = FIRST_LAYER_MM
+#: Risky area is reported apart for the model's underside, faces reaching no higher than this over
+#: the platform (mm): a scanned bottom is rarely flat (the shared bunny's has a rim 0.5-1 mm and a
+#: recess ceiling 2-3 mm over its lowest point, facing straight down) and nothing can stand below
+#: it -- no part under the root, no face-up plane (Constraint II) beneath it.
+UNDERSIDE_MM = 5.0
 
 
 def risky_mask(normals: np.ndarray, direction: np.ndarray, alpha_max: float) -> np.ndarray:
@@ -59,6 +64,12 @@ def risky_faces(mesh: trimesh.Trimesh, base: Plane, alpha_max: float) -> np.ndar
 def risky_area(mesh: trimesh.Trimesh, base: Plane, alpha_max: float) -> float:
     """R(M_i) of §2.4.3 in mm²."""
     return float(mesh.area_faces[risky_faces(mesh, base, alpha_max)].sum())
+
+
+def underside_mask(mesh: trimesh.Trimesh, up: np.ndarray, platform: float, height: float = UNDERSIDE_MM) -> np.ndarray:
+    """Faces of ``mesh`` whose highest vertex is within ``height`` of the platform (the plane
+    ``x·up = platform``): the model's underside."""
+    return (mesh.vertices @ np.asarray(up, float) - platform)[mesh.faces].max(axis=1) <= height
 
 
 def lowest_plane(vertices: np.ndarray, direction: np.ndarray) -> Plane:

@@ -4,7 +4,8 @@
   not overlap (their volumes add up to the union's);
 - each part's risky area (Eq. 2.1, faces within the first layer above the base plane excluded,
   ``first_layer_mm`` of parts.json) recomputed from its mesh equals the reported
-  one, and whether every part is support-free;
+  one, so does its share on the model's underside (faces reaching no higher than ``underside_mm``
+  over the lowest point of all parts), and whether every part is support-free;
 - Constraint I: the base faces (faces of a part on its base plane) of two parts never cross on a
   stretch of the planes' common line — found by cutting each base face's triangles with the other
   plane (trimesh), not by the polygon code that made the decomposition; sections that merely end
@@ -97,20 +98,31 @@ def checks(outdir: Path) -> list[Check] | None:
         results.append(Check(STAGE, "parts do not overlap", over <= VOLUME_TOL, f"{100 * over:.4f} %"))
     else:
         results.append(Check(STAGE, "union equals model", False, "missing", "solid.stl is not in the folder"))
-    risky, mismatch = [], []
+    risky, under, mismatch = [], [], []
+    underside = spec.get("underside_mm")
+    low = min(float((m.vertices @ root_dir).min()) for m in meshes)
     for k, (p, m) in enumerate(zip(parts, meshes)):
         n, c = np.asarray(p["base_plane"]["normal"], float), float(p["base_plane"]["offset_mm"])
         first = np.all(np.abs((m.vertices @ n - c)[m.faces]) <= first_layer, axis=1)
         bad = (m.face_normals @ n + np.sin(alpha) < 0) & ~first
         area = float(m.area_faces[bad].sum())
         risky.append(area)
-        if abs(area - p["risky_area_mm2"]) > 1e-3 * max(1.0, area):
+        wrong = abs(area - p["risky_area_mm2"]) > 1e-3 * max(1.0, area)
+        if underside is not None:  # the share on the model's underside, faces no higher than underside_mm
+            low_face = (m.vertices @ root_dir - low)[m.faces].max(axis=1) <= underside
+            under.append(float(m.area_faces[bad & low_face].sum()))
+            told = p.get("risky_underside_mm2")
+            wrong |= told is None or abs(under[-1] - told) > 1e-3 * max(1.0, under[-1])
+        if wrong:
             mismatch.append(k)
     results.append(Check(STAGE, "risky area per part", not mismatch, ", ".join(f"{a:.1f}" for a in risky) + " mm²",
                          f"reported differs for parts {mismatch}" if mismatch else "recomputed = reported"))
     worst = int(np.argmax(risky))
+    split = (f"; on the underside (≤ {underside:g} mm over the platform): "
+             + ", ".join(f"{u:.1f}" for u in under) + " mm², elsewhere max "
+             + f"{max(a - u for a, u in zip(risky, under)):.1f} mm²") if under else ""
     results.append(Check(STAGE, "every part support-free", max(risky) <= SUPPORT_FREE_MM2,
-                         f"max {max(risky):.1f} mm²", f"part {worst} (≤ {SUPPORT_FREE_MM2} mm² counts as free)"))
+                         f"max {max(risky):.1f} mm²", f"part {worst} (≤ {SUPPORT_FREE_MM2} mm² counts as free){split}"))
     planes = [(np.asarray(p["base_plane"]["normal"], float), float(p["base_plane"]["offset_mm"])) for p in parts]
     crossing = []
     for i in range(len(parts)):
