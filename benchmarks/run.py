@@ -439,6 +439,11 @@ def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, met
     for voxel in sweep_sizes if sweep else ():
         done("sweep", run_case(_model_path(sweep_model, quick), voxel, methods=("pg-sp-gcfa",), robot=None,
                                repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
+    if not quick:  # Table 2.1: the bunny's RoboFDM decomposition and its printed parts' fabrication time
+        from benchmarks.bench_decompose import decomposition_case
+
+        out["decompose"] = []
+        done("decompose", decomposition_case(_model_path("bunny", quick), print_parts=True))
     out["complete"] = True
     return out
 
@@ -658,6 +663,10 @@ def markdown(result: dict[str, object]) -> str:
             slope = sweep_exponent(sweep, k)
             lines.append(f"| {STAGE_LABELS[k]} | " + " | ".join(_cell(c["stages"][k]) for c in sweep)
                          + f" | {'–' if slope is None else f'{slope:.2f}'} |")
+    if result.get("decompose"):
+        from benchmarks.bench_decompose import table_2_1_lines
+
+        lines += [""] + table_2_1_lines(result["decompose"])
     if result.get("verify"):
         from benchmarks.bench_verify import markdown as verify_markdown
 
