@@ -78,7 +78,7 @@ def main() -> None:
                          "verify": {c.name: c.value for c in checks}}
     skipped = [r for s in graph.layers for r in s.get("skipped_rows", [])]
     summary = {k: v for k, v in report.items() if k != "layers"}
-    summary.update(waypoints=int(len(tp["positions"])), rows=int(len(final.q)), layers=a.layers, wall_s=wall, cpu_s=cpu,
+    summary.update(waypoints=int(len(tp["positions"])), rows=int(len(final.q)), layers=a.layers, wall_s=wall, stage_cpu_s=cpu,
                    graph_search_s=search, jerk_stage_s=jerk_s, load=os.getloadavg()[0], skipped_rows=skipped,
                    verdict=verdict, per_layer=report["layers"])
     (a.out / "bench_jerk.json").write_text(json.dumps(summary, indent=1, default=float))
