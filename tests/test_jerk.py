@@ -203,3 +203,25 @@ def test_a_final_row_hitting_an_obstacle_is_projected_not_reverted(dome):
     assert err_pos <= 1e-6 and err_axis <= 1e-6
     assert report["rows_over_limits"] == 0
     assert report["after"]["total_squared_jerk"] < 0.1 * report["before"]["total_squared_jerk"]
+
+
+def test_a_jump_between_pieces_becomes_a_ruckig_move(dome):
+    cell, robot, pos, nor, motion = dome
+    n = len(pos)
+    path = np.r_[np.ones(40, np.int32), np.full(n - 40, 2, np.int32)]  # a second piece starts at row 40
+    extrusion = np.r_[0.0, np.full(39, 0.05), 0.0, np.full(n - 41, 0.05)]
+    tp = dict(positions=pos, normals=nor, layer=np.ones(n, np.int32), path=path, extrusion=extrusion,
+              thickness=np.full(n, 0.8), feed=np.full(n, 600.0))
+    graph = plan_print(robot, cell, tp)
+    assert len(np.unique(graph.segment)) == 1  # the graph search carries on across the jump
+    out, report = trajectory_stage(robot, cell, tp, graph, "jerk")
+    rows = np.flatnonzero(out.index == 40)[0]
+    assert out.segment[rows] != out.segment[rows - 1] and len(np.unique(out.segment)) == 2
+    assert not out.extruding[rows]
+    limits = Limits.of(robot, cell)
+    want = max(rest_to_rest(out.q[rows - 1], out.q[rows], limits), cell.min_step_time)
+    assert out.t[rows] - out.t[rows - 1] == pytest.approx(want, rel=1e-12)
+    # "before" is the graph's own trajectory (its one segment), as --trajectory graph reports it
+    assert report["before"]["total_squared_jerk"] == trajectory_stage(robot, cell, tp, graph, "graph")[1]["layers"][0]["before"]["total_squared_jerk"]
+    acc, jerk = _local_derivatives(out.q, out.t, out.segment)
+    assert (np.abs(jerk) <= limits.jerk * (1 + 1e-9)).all() and (np.abs(acc) <= limits.acceleration * (1 + 1e-9)).all()

@@ -68,7 +68,7 @@ def checks(outdir: Path) -> list[Check] | None:
         total = len(tp["positions"])
         out.append(Check(STAGE, "waypoints realized", covered == total, f"{covered}/{total}",
                          "every tool-path sample has a joint row" if covered == total else
-                         "unreachable samples have no joint row (see report.json robot.layers[].skipped)"))
+                         "unreachable samples have no joint row (see report.json robot.layers[].skipped_rows: row and reason)"))
     pos_err = np.linalg.norm(tip - want_pos, axis=1).max() if n else 0.0
     ax_err = _angle(axis, want_axis).max() if n else 0.0
     out.append(Check(STAGE, "FK reproduces waypoint position", pos_err <= POSITION_TOL, f"{pos_err:.2e} mm",
