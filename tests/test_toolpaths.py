@@ -203,9 +203,11 @@ def test_stage_output_passes_the_verifier_and_corruption_is_caught(tmp_path):
 @pytest.mark.parametrize("rule", ["seam", "chain"])
 def test_start_rules_start_each_layer_at_the_seam_or_where_the_previous_ended(rule):
     """Four discs 0.9 mm apart, each shifted 1.5 mm in x. ``seam``: every even layer starts, every odd
-    one (printed backward) ends, within a spiral cut (≤ 3 widths) of its boundary point nearest the
-    seam point (-12, 0, 0): the lowest x of all layers (layer 1), mid y, on the platform; no other layer's
-    paths. ``chain``: every layer starts within a cut of where the previous one ended."""
+    one (printed backward) ends, at the same place of its disc (the rule sees only the layer and the
+    seam point (-12, 0, 0): the lowest x of all layers (layer 1), mid y, on the platform; no other
+    layer's paths), on the seam's side: the cut line is rooted on the innermost ring's point nearest the
+    seam and runs outwards, so it meets the rim within a few widths of the rim's point nearest the seam.
+    ``chain``: every layer starts within a cut of where the previous one ended."""
     from curvslice.toolpaths import ToolpathSettings, plan_toolpaths
 
     base = polygon_mesh(sg.Point(0, 0).buffer(12.0, 128), 0.7)
@@ -216,9 +218,11 @@ def test_start_rules_start_each_layer_at_the_seam_or_where_the_previous_ended(ru
     if rule == "seam":
         seam_points = [np.array([1.5 * k - 12.0, 0.0]) for k in range(4)]  # boundary points nearest (-12, 0)
         at_seam = [ends[k][k % 2][:2] for k in range(4)]
-        assert all(np.linalg.norm(a - b) <= cut for a, b in zip(at_seam, seam_points)), at_seam
-        far = [np.linalg.norm(ends[k][1 - k % 2][:2] - seam_points[k]) for k in range(4)]
-        assert max(far) <= cut  # one connected spiral per disc: it ends next to where it starts
+        offsets = [a - b for a, b in zip(at_seam, seam_points)]
+        assert all(np.allclose(o, offsets[0], atol=0.05) for o in offsets), offsets  # same place on every disc
+        assert np.linalg.norm(offsets[0]) <= 2 * cut, offsets  # a cut line's sweep of the seam's side
+        far = [np.linalg.norm(ends[k][1][:2] - ends[k][0][:2]) for k in range(4)]
+        assert max(far) <= cut, far  # one connected spiral per disc: it ends next to where it starts
     else:
         gaps = [np.linalg.norm(ends[k + 1][0][:2] - ends[k][1][:2]) for k in range(3)]
         assert max(gaps) <= cut, gaps

@@ -186,7 +186,7 @@ class _Builder:
         rings = [self.tree.rings[i] for i in chain]
         cuts: list[float] = []
         tangent = host_tangent
-        for k, (ring, point) in enumerate(zip(rings, self.cut_line(chain, anchor))):
+        for k, (ring, point) in enumerate(zip(rings, self.cut_line(chain, anchor, spliced=host_tangent is not None))):
             s, _ = _closest_s(ring, point)
             if tangent is not None and ring.length > 0 and np.dot(_tangent(ring, s, self.w), tangent) < 0:
                 ring = _reversed(ring)
@@ -231,23 +231,29 @@ class _Builder:
             arcs.append(self._ring_walk(ring, start, end, direction, hosted.get(k, []), s))
         return np.vstack(arcs)
 
-    def cut_line(self, chain: list[int], anchor: np.ndarray) -> list[np.ndarray]:
-        """Cut point of every ring of ``chain`` (outermost first): the innermost ring's point nearest
-        to ``anchor``, then outwards each ring's point nearest to the cut of the ring inside it.
+    def cut_line(self, chain: list[int], anchor: np.ndarray, spliced: bool = False) -> list[np.ndarray]:
+        """Cut point of every ring of ``chain`` (outermost first), lined up on one cut line (Zhao et
+        al. 2016). A root chain: the innermost ring's point nearest to ``anchor``, then outwards each
+        ring's point nearest to the cut of the ring inside it. A chain ``spliced`` into a host ring:
+        the outermost ring's point nearest to ``anchor`` (the splice on the host), then inwards.
 
         Every point of an inner ring lies about a width from the ring around it (the boundary
         distance grows by one width from one ring to the next, at most one width per width walked),
         but not the converse: an outer ring's point may lie far from a small or off-centre inner
-        ring. Propagated outwards, the cuts line up on one cut line (Zhao et al. 2016) and the links
-        of the spiral across it stay about a width long wherever the anchor lies; propagated
-        inwards from the anchor, a link could cross the whole region over the passes in between."""
-        points: list[np.ndarray] = []
+        ring. Propagated outwards, the links of the spiral across the cut line stay about a width
+        long wherever the anchor lies (inwards from an anchor beside an off-centre inner ring, a link
+        crossed the region: rocker-arm 0.8 layer 125, 36 w). A spliced chain's first link runs from
+        the host's gap to its outermost cut, so there the cut line starts at the splice: propagated
+        outwards it could end anywhere on the child's outer ring, a splice too far to link (an
+        annulus with an off-centre hole: the hole's branch was printed as a separate piece)."""
+        order = list(range(len(chain))) if spliced else list(reversed(range(len(chain))))
+        points: dict[int, np.ndarray] = {}
         point = anchor
-        for i in reversed(chain):
-            ring = self.tree.rings[i]
+        for k in order:
+            ring = self.tree.rings[chain[k]]
             point = _point_at(np.vstack([ring.points, ring.points[:1]]), ring.cumlen, _closest_s(ring, point)[0])
-            points.append(point)
-        return points[::-1]
+            points[k] = point
+        return [points[k] for k in range(len(chain))]
 
     def _separate(self, ring_id: int) -> None:
         self.failed += 1
@@ -266,7 +272,7 @@ class _Builder:
         shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
         for child in children:
             # where the child's cut line meets the host (its outermost cut, next to the host)
-            s_child, dist = _closest_s(ring, self.cut_line(self.chain_from(child), self._nearest_point(child, ring))[0])
+            s_child, dist = _closest_s(ring, self.cut_line(self.chain_from(child), self._nearest_point(child, ring), spliced=True)[0])
             offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
             taken = [o for o, _ in placed]
             ok_pos = None
