@@ -133,10 +133,8 @@ class Redundancy:
         z = np.asarray(z, float)
         z = z[:, None] if z.ndim == 1 else z
         T = self.flange(z, rows)
-        q, ok = ik(self.robot, T, check=False)
-        k = np.arange(len(rows))
-        b = self.branch[rows]
-        q, ok = q[k, b], ok[k, b]
+        # the row's own branch only (an eighth of the full solve; -1 rows are fixed, any branch will do)
+        q, ok = ik(self.robot, T, check=False, branch=self.branch[rows] % 8)
         if check:  # ik's FK re-check (its tolerances), on the one branch kept
             back = fk(self.robot, q)
             ok &= (np.linalg.norm(back[:, :3, 3] - T[:, :3, 3], axis=1) <= 1e-3) & \
