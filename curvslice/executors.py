@@ -27,6 +27,23 @@ from curvslice.errors import CurvsliceError
 #: Times a task is re-run after its worker died or it raised (a lost worker, not a bug, is the case).
 RETRIES = 3
 
+#: Dask settings of the local clusters of ``--workers N`` (their scheduler and the workers' processes,
+#: which get the config from their nannies). Without them the workers of the bunny's tool-path stage
+#: spent 1.34× the CPU of the in-process run and the scheduler (in the client's process) 0.2× more,
+#: measured side by side on layers 40-70 (benchmarks/SCALING.md); with them 1.09× and 0.1×:
+#: * MALLOC_TRIM_THRESHOLD_, which Dask sets in its workers, pins glibc's mmap threshold at 128 KiB:
+#:   every mid-size numpy temporary of a layer's task is then mapped and zero-filled anew (+30 % CPU
+#:   measured on the kitten's tool-paths); workers of a short run keep glibc's default instead;
+#: * the workers' statistical profiler samples the task thread's stack every 10 ms (the dashboard's
+#:   profile, which a run without dashboard never shows) and takes the GIL from the task each time;
+#: * memory and system monitors and work stealing poll every 0.1-0.5 s: once a second is enough for
+#:   tasks of 0.1-2 s.
+LOCAL_CLUSTER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+                        "distributed.worker.profile.enabled": False,
+                        "distributed.worker.memory.monitor-interval": "1s",
+                        "distributed.admin.system-monitor.interval": "1s",
+                        "distributed.scheduler.work-stealing-interval": "1s"}
+
 
 class InProcess:
     """Every task runs here, at once, in submission order."""
@@ -120,10 +137,7 @@ def open_executor(workers: int | None = None, scheduler: str | None = None,
             raise CurvsliceError(f"the number of workers must be at least 1 (got {workers})")
         import dask
 
-        # Dask sets MALLOC_TRIM_THRESHOLD_ in its workers, which pins glibc's mmap threshold at 128 KiB:
-        # every mid-size numpy temporary of a layer's task is then mapped and zero-filled anew (+30% CPU
-        # measured on the kitten's tool-paths). Workers of a short run keep glibc's default instead.
-        with dask.config.set({"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None}):
+        with dask.config.set(LOCAL_CLUSTER_CONFIG):
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, host="127.0.0.1",
                                    dashboard_address=None)
         client = Client(cluster)

@@ -13,8 +13,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from curvslice.cli import main
+from curvslice.executors import open_executor
+from curvslice.toolpaths.passes import uncross
 
 ROOT = Path(__file__).resolve().parents[1]
 TEE = ROOT / "models" / "tee.stl"
@@ -117,3 +121,29 @@ def test_killing_a_worker_mid_run_still_gives_the_same_arrays(in_process, tmp_pa
             if p.poll() is None:
                 p.kill()
             p.wait()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(4, 60))
+def test_uncrossing_keeps_a_pieces_ends(seed, n):
+    """The chain's fold orders a layer's pieces and finds where the layer ends before they are uncrossed
+    (that runs in the parallel orient task): valid because ``uncross`` only reverses inner stretches.
+    Random walks cross themselves often; every order keeps the first and last point, visits each once,
+    and leaves the piece no longer."""
+    p = np.c_[np.random.default_rng(seed).normal(size=(n, 2)).cumsum(axis=0), np.zeros(n)]
+    order = uncross(p, 1.0)
+    assert order[0] == 0 and order[-1] == n - 1 and sorted(order) == list(range(n))
+    length = lambda q: np.linalg.norm(np.diff(q, axis=0), axis=1).sum()
+    assert length(p[order]) <= length(p) + 1e-9
+
+
+def test_local_cluster_workers_run_without_profiler_and_dask_malloc_setting():
+    """The settings of :data:`LOCAL_CLUSTER_CONFIG` reach the workers' processes (from their nannies),
+    not only the client's."""
+    import dask
+
+    with open_executor(workers=1) as ex:
+        seen = ex.client.run(lambda: (dask.config.get("distributed.worker.profile.enabled"),
+                                      "MALLOC_TRIM_THRESHOLD_" in os.environ))
+    assert list(seen.values()) == [(False, False)]
+    assert dask.config.get("distributed.worker.profile.enabled")  # the client's own config is left as it was

@@ -179,9 +179,21 @@ def layer_rings(mesh: trimesh.Trimesh, width: float,
 def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, fill_gaps: bool = True,
                  min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerPaths:
     """The part of :func:`layer_paths` that depends on ``start`` (the seam, or where the previous layer
-    ended): the connected spirals from the rings, the beads, and the order of the pieces."""
+    ended): the connected spirals from the rings, the beads, and the order of the pieces, each freed of
+    its self-crossings (:func:`~curvslice.toolpaths.passes.uncross`)."""
+    out, order = _beaded_pieces(r, width, start, fill_gaps, min_bead)
+    done = [_finish_piece(out.pieces[i], out.widths[i], reverse, width) for i, reverse in order]
+    out.pieces, out.widths = [p for p, _ in done], [b for _, b in done]
+    return out
+
+
+def _beaded_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, fill_gaps: bool = True,
+                  min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[LayerPaths, list[tuple[int, bool]]]:
+    """:func:`layer_pieces` but the last step: the paths with their beaded pieces as fitted, and the print
+    order (piece index, reversed) with its travel. Uncrossing a piece keeps its two ends, so the order,
+    the travel and where the layer ends are known before it: :func:`_finish_piece` can run elsewhere."""
     if r.rings is None:
-        return LayerPaths(pieces=[])
+        return LayerPaths(pieces=[]), []
     surface, v, f, bridged, rings, lines, thin, closed, top = (r.surface, r.v, r.f, r.bridged, r.rings, r.lines,
                                                                r.thin, r.closed, r.top)
     spirals, regions, splices, failed = connected_spirals(rings, width, start)
@@ -189,34 +201,36 @@ def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, f
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))
     passes = join_touching([p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9], width)
-    pieces, widths, out.gap_passes = layer_beads(surface, v, f, passes, width, min_bead, fill_gaps)
-    orders = [uncross(p, width) for p in pieces]
-    pieces, widths = [p[o] for p, o in zip(pieces, orders)], [b[o] for b, o in zip(widths, orders)]
-    out.pieces, out.widths = _order_pieces(pieces, widths, start)
-    out.travel = float(sum(np.linalg.norm(b[0] - a[-1]) for a, b in zip(out.pieces[:-1], out.pieces[1:])))
-    return out
+    out.pieces, out.widths, out.gap_passes = layer_beads(surface, v, f, passes, width, min_bead, fill_gaps)
+    order = _order_pieces(out.pieces, start)
+    ends = [(out.pieces[i][-1], out.pieces[i][0]) if reverse else (out.pieces[i][0], out.pieces[i][-1])
+            for i, reverse in order]
+    out.travel = float(sum(np.linalg.norm(b[0] - a[1]) for a, b in zip(ends[:-1], ends[1:])))
+    return out, order
 
 
+def _finish_piece(piece: np.ndarray, widths: np.ndarray, reverse: bool, width: float) -> tuple[np.ndarray, np.ndarray]:
+    """A beaded piece freed of its self-crossings (:func:`~curvslice.toolpaths.passes.uncross`, which keeps
+    its ends) and its vertex widths, printed backward when ``reverse``."""
+    o = uncross(piece, width)
+    p, b = piece[o], widths[o]
+    return (p[::-1], b[::-1]) if reverse else (p, b)
 
 
-def _order_pieces(pieces: list[np.ndarray], widths: list[np.ndarray],
-                  start: np.ndarray | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Greedy nearest-end ordering (pieces may be reversed, with their vertex widths) to shorten
-    travels (§3.3.2 item 2)."""
-    left = list(zip(pieces, widths))
-    cursor = np.asarray(start, float) if start is not None else (left[0][0][0] if left else None)
-    ordered, ordered_w = [], []
+def _order_pieces(pieces: list[np.ndarray], start: np.ndarray | None) -> list[tuple[int, bool]]:
+    """Greedy nearest-end ordering (pieces may be reversed) to shorten travels (§3.3.2 item 2): the
+    pieces' indices in print order, each with whether it is printed backward."""
+    left = list(range(len(pieces)))
+    cursor = np.asarray(start, float) if start is not None else (pieces[0][0] if pieces else None)
+    order = []
     while left:
-        d0 = [np.linalg.norm(p[0] - cursor) for p, _ in left]
-        d1 = [np.linalg.norm(p[-1] - cursor) for p, _ in left]
-        i = int(np.argmin(np.minimum(d0, d1)))
-        p, wv = left.pop(i)
-        if d0[i] > d1[i]:
-            p, wv = p[::-1], wv[::-1]
-        ordered.append(p)
-        ordered_w.append(wv)
-        cursor = p[-1]
-    return ordered, ordered_w
+        d0 = [np.linalg.norm(pieces[i][0] - cursor) for i in left]
+        d1 = [np.linalg.norm(pieces[i][-1] - cursor) for i in left]
+        k = int(np.argmin(np.minimum(d0, d1)))
+        i, reverse = left.pop(k), bool(d0[k] > d1[k])
+        order.append((i, reverse))
+        cursor = pieces[i][0] if reverse else pieces[i][-1]
+    return order
 
 
 
@@ -342,11 +356,13 @@ class _Prepared:
 
 @dataclass
 class _Folded:
-    """One layer's pieces (:func:`_fold_layer`), where it ends, and the seconds of its
-    :func:`_prepare_layer` and :func:`_fold_layer` work."""
+    """One layer's beaded pieces and their print order (:func:`_beaded_pieces`), the samples of the last
+    pieces as printed (``tail``: by position in the order, up to the last one with two samples), where
+    the layer ends, and the seconds of its :func:`_prepare_layer` and :func:`_fold_layer` work."""
 
     paths: LayerPaths
-    samples: list[np.ndarray]
+    order: list[tuple[int, bool]]
+    tail: dict[int, np.ndarray]
     cursor: np.ndarray | None
     seconds: float
 
@@ -365,8 +381,10 @@ def _prepare_layer(k: int, surfaces: list[trimesh.Trimesh], supports: list, sett
 
 def _fold_layer(prepared: _Prepared, previous: _Folded | None, k: int, surfaces: list[trimesh.Trimesh],
                 settings: ToolpathSettings, start: np.ndarray | None = None, backward: bool = False) -> _Folded:
-    """Layer ``k``'s pieces from ``start``, or (the ``chain`` rule) from where ``previous`` ended: then
-    the sequential part of the stage. ``backward``: printed in reverse, so that it ends at ``start``."""
+    """Layer ``k``'s beaded pieces and their order from ``start``, or (the ``chain`` rule) from where
+    ``previous`` ended: the sequential part of the stage, so only what decides where the layer ends is
+    done here -- of the pieces' uncrossing and re-sampling only the last ones' (:func:`_orient_layer`
+    does the others). ``backward``: printed in reverse, so that it ends at ``start``."""
     t0 = perf_counter()
     w, surface = settings.path_width, surfaces[k]
     cursor = previous.cursor if previous is not None else start
@@ -376,23 +394,36 @@ def _fold_layer(prepared: _Prepared, previous: _Folded | None, k: int, surfaces:
     def min_bead(points: np.ndarray) -> np.ndarray:  # a bead is never narrower than it is high
         return vertex_thickness[vertex_tree.query(points)[1]]
 
-    paths = layer_pieces(prepared.rings, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
+    paths, order = _beaded_pieces(prepared.rings, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
     if backward:  # the same pieces printed the other way round: the layer ends where it would start
-        paths.pieces, paths.widths = [p[::-1] for p in paths.pieces[::-1]], [b[::-1] for b in paths.widths[::-1]]
-    samples = [resample(np.c_[p, b], settings.step, WIDTH_WEIGHT, TURN_WEIGHT * w) for p, b in zip(paths.pieces, paths.widths)]
-    samples = [s for s in samples if len(s) >= 2]
-    if samples:
-        cursor = samples[-1][-1, :3]
-    return _Folded(paths, samples, cursor, prepared.seconds + perf_counter() - t0)
+        order = [(i, not reverse) for i, reverse in order[::-1]]
+    tail = {}
+    for n in range(len(order) - 1, -1, -1):  # the layer ends at the last sample of its last piece of two
+        tail[n] = _piece_samples(paths, order[n], settings)
+        if len(tail[n]) >= 2:
+            cursor = tail[n][-1, :3]
+            break
+    return _Folded(paths, order, tail, cursor, prepared.seconds + perf_counter() - t0)
+
+
+def _piece_samples(paths: LayerPaths, at: tuple[int, bool], settings: ToolpathSettings) -> np.ndarray:
+    """Samples (x, y, z, bead) of the piece ``at`` (index, reversed) of :func:`_beaded_pieces`' ``paths``
+    as printed: uncrossed (:func:`_finish_piece`) and re-sampled (§3.5.2)."""
+    w = settings.path_width
+    piece, bead = _finish_piece(paths.pieces[at[0]], paths.widths[at[0]], at[1], w)
+    return resample(np.c_[piece, bead], settings.step, WIDTH_WEIGHT, TURN_WEIGHT * w)
 
 
 def _orient_layer(k: int, folded: _Folded, surfaces: list[trimesh.Trimesh], supports: list,
                   settings: ToolpathSettings) -> tuple[dict[str, np.ndarray], dict[str, float], float, float]:
-    """Layer ``k``'s orientations (Eq. 3.3), thickness and beads per sample: a parallel task once its
-    pieces are known. Returns its arrays (path ids from 0 within the layer), its report row, and the
+    """Layer ``k``'s pieces as printed (uncrossed, re-sampled: :func:`_piece_samples`), their orientations
+    (Eq. 3.3), thickness and beads per sample: a parallel task once its pieces are known. Returns its arrays (path ids from 0 within the layer), its report row, and the
     seconds of its pieces and of this."""
     t1 = perf_counter()
-    w, surface, paths, samples = settings.path_width, surfaces[k], folded.paths, folded.samples
+    w, surface, paths = settings.path_width, surfaces[k], folded.paths
+    samples = [folded.tail[n] if n in folded.tail else _piece_samples(paths, at, settings)
+               for n, at in enumerate(folded.order)]
+    samples = [s for s in samples if len(s) >= 2]
     tri, own_tree, _ = supports[k]
     earlier = _earlier(supports, k, settings.window)
     out: dict[str, np.ndarray] = {}
