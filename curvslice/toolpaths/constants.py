@@ -72,9 +72,9 @@ CENTRE_BIN = 0.5
 # ----------------------------------------------------------------------------- Fermat spirals (spirals.py)
 
 #: Rings shorter than this many widths (about 1.3 w across) are printed as one short bead along
-#: their diameter: a loop that small would lay its bead over itself all round. A lone ring (a region
-#: of its own) is such a dot only where the widest bead along its diameter reaches the layer's edge
-#: all round (:func:`~curvslice.toolpaths.spirals._dot_reaches`), else a loop.
+#: their diameter: a loop that small would lay its bead over itself all round. (Keeping broad lone
+#: rings as loops helped rocker-arm 0.8 layer 98 but failed the needle's tip and fertility 0.8 layer
+#: 133 on overlap: measured and dropped.)
 DOT_RING = 4.0
 #: A ring is round, and its inside reaches as far as the distance rises above it, when its
 #: isoperimetric ratio 4π·area / length² is at least this (a disc 1, a strip of aspect 1:5 0.44);

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
+from curvslice.toolpaths.constants import (CORNER_ANGLE, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
                                            SPLICE_SHIFT, SPLICE_SHIFTS)
 from curvslice.toolpaths.rings import Ring, lone_thin_loop, loop_centre_line, thin_rise
 
@@ -94,19 +94,6 @@ def _dot_chord(ring: Ring) -> tuple[np.ndarray, np.ndarray]:
     """A dot's diameter: its point nearest to its mean, and its point farthest from that one."""
     centre = ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
     return centre, ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]
-
-
-def _dot_reaches(ring: Ring, width: float) -> bool:
-    """Whether the widest bead (``BEAD_RANGE``) along a lone dot's diameter reaches the layer's edge
-    all round: every point of the ring within ``BEAD_RANGE[1]/2 − FIRST_LEVEL`` widths of it (the
-    edge lies ``FIRST_LEVEL`` outside the ring). A ring a little shorter than ``DOT_RING`` widths
-    but as broad as it is long is a loop instead (rocker-arm 0.8 layer 98, a 3.3 w ring: 87.9 %
-    coverage as a diameter, 96.7 % as a loop)."""
-    a, b = _dot_chord(ring)
-    ab = b - a
-    t = np.clip((ring.points - a) @ ab / max(float(ab @ ab), 1e-300), 0.0, 1.0)
-    off = np.linalg.norm(ring.points - (a + t[:, None] * ab), axis=1).max()
-    return off <= (0.5 * BEAD_RANGE[1] - FIRST_LEVEL) * width
 
 
 def _reversed(ring: Ring) -> Ring:
@@ -197,7 +184,7 @@ class _Builder:
         seam = len(rings) == 1 and host_tangent is None  # a lone ring's own seam: no link crosses its cut
         if seam:
             cuts[0] = _seam(rings[0], cuts[0], self.w)
-        dots = [r.length < DOT_RING * self.w and (not seam or _dot_reaches(r, self.w)) for r in rings]
+        dots = [r.length < DOT_RING * self.w for r in rings]
         # children hosted by the innermost ring (branches), root siblings by ring 0
         hosted: dict[int, list[int]] = {}
         last_comp = self.tree.child_comp.get(chain[-1])
