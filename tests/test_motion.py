@@ -170,6 +170,21 @@ def ur5():
     return load_robot("ur5"), load_workcell("ur5")
 
 
+
+def _assert_realizes(robot, cell, scene, motion, c, t) -> np.ndarray:
+    """FK of every row reproduces its waypoint (position, axis), joint limits, ξ inside the motions and
+    no collision; returns the rows' same-motion mask."""
+    pos, axis = waypoints_from_flange(cell, fk_reference(robot, motion.q))
+    assert np.abs(pos - c).max() < 1e-6
+    assert np.abs(axis - t).max() < 1e-9
+    lo, hi = cell.limits(robot)
+    assert (motion.q >= lo).all() and (motion.q <= hi).all()
+    same = motion.segment[1:] == motion.segment[:-1]
+    speed = np.abs(np.diff(motion.q, axis=0)).max(axis=1) / np.diff(motion.t)
+    assert speed[same].max() <= cell.max_joint_speed * (1 + 1e-9)
+    assert not scene.collisions(motion.q).any()
+    return same
+
 def test_planned_dome_spiral_is_reproduced_by_pinocchio_fk(ur5):
     robot, cell = ur5
     c, t = _dome_spiral(300)
@@ -179,16 +194,7 @@ def test_planned_dome_spiral_is_reproduced_by_pinocchio_fk(ur5):
     rows = motion.segment >= 0
     assert rows.all()
     assert (motion.solutions > 0).all()
-    flange = fk_reference(robot, motion.q)
-    pos, axis = waypoints_from_flange(cell, flange)
-    assert np.abs(pos - c).max() < 1e-6
-    assert np.abs(axis - t).max() < 1e-9
-    lo, hi = cell.limits(robot)
-    assert (motion.q >= lo).all() and (motion.q <= hi).all()
-    same = motion.segment[1:] == motion.segment[:-1]
-    speed = np.abs(np.diff(motion.q, axis=0)).max(axis=1) / np.diff(motion.t)
-    assert speed[same].max() <= cell.max_joint_speed * (1 + 1e-9)
-    assert not scene.collisions(motion.q).any()
+    _assert_realizes(robot, cell, scene, motion, c, t)
     assert motion.collision_checks < motion.solutions.sum()  # lazy: fewer checks than nodes
 
 
@@ -329,14 +335,7 @@ def test_coarse_to_fine_matches_the_full_search_on_a_dome_spiral(ur5):
     full = plan_motion(robot, cell, c, t, dt, collides=scene.collisions)
     fast = plan_motion(robot, cell, c, t, dt, collides=scene.collisions, keep=coarse_rungs(np.zeros(len(c)), 8))
     assert (fast.segment >= 0).all() and len(fast.splits) <= len(full.splits)
-    pos, axis = waypoints_from_flange(cell, fk_reference(robot, fast.q))
-    assert np.abs(pos - c).max() < 1e-6 and np.abs(axis - t).max() < 1e-9
-    lo, hi = cell.limits(robot)
-    assert (fast.q >= lo).all() and (fast.q <= hi).all()
-    same = fast.segment[1:] == fast.segment[:-1]
-    speed = np.abs(np.diff(fast.q, axis=0)).max(axis=1) / np.diff(fast.t)
-    assert speed[same].max() <= cell.max_joint_speed * (1 + 1e-9)
-    assert not scene.collisions(fast.q).any()
+    same = _assert_realizes(robot, cell, scene, fast, c, t)
     # the recomputed cost of the chosen rows is Eq. 3.4 summed inside the motions
     steps = np.abs(np.diff(fast.q, axis=0)).sum(axis=1)
     assert fast.cost == pytest.approx(steps[same].sum(), rel=1e-9)
