@@ -1,9 +1,12 @@
 """Trimming a working surface by the solid H (thesis §3.4.5, step 3 of :mod:`curvslice.working_surfaces`).
 
-Vertices are classified by an exact signed distance to ∂H (closest triangle feature + angle-weighted
-pseudonormal, Bærentzen & Aanæs 2005); a point in a voxel that ∂H does not touch takes that voxel's side
-(:class:`VoxelSides`), which stays right beside folds of ∂H where a pseudonormal's sign can fail. Triangles
-are clipped along the zero set and every new boundary vertex is placed on ∂H by regula falsi.
+Vertices are classified by a signed distance to ∂H: the exact distance to the closest triangle, signed
+by the winding number of a +z ray (:class:`~curvslice.voxelize.RayWinding`, the voxelizer's nonzero
+rule), which stays right where ∂H crosses itself or shells overlap -- there the closest feature's
+pseudonormal (Bærentzen & Aanæs 2005) can lie on a sheet inside H (the cow's skin) and say "outside"
+inside H or "inside" outside it. A point in a voxel that ∂H does not touch takes that voxel's side
+(:class:`VoxelSides`) without a ray. Triangles are clipped along the zero set and every new boundary
+vertex is placed on ∂H by regula falsi.
 """
 
 from __future__ import annotations
@@ -16,44 +19,16 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from curvslice.errors import CurvsliceError
-from curvslice.voxelize import centres_inside, surface_voxels
+from curvslice.voxelize import RayWinding, centres_inside, surface_voxels
 
 #: Vertices within this distance of ∂H (in voxel widths) are snapped onto ∂H (no slivers).
 SNAP = 0.01
 #: Regula falsi stops within this distance of ∂H (voxel widths); the vertex then moves onto ∂H.
 ROOT_TOL = 0.01
 ROOT_ITERATIONS = 40
-
-
-def closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
-                         ) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points of p on triangles (a, b, c), row by row (Ericson 2005, §5.1.5), and their
-    barycentric coordinates, exactly 0 on the feature's missing corners (edge and vertex regions)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = np.einsum("ij,ij->i", ab, ap), np.einsum("ij,ij->i", ac, ap)
-    bp, cp = p - b, p - c
-    d3, d4 = np.einsum("ij,ij->i", ab, bp), np.einsum("ij,ij->i", ac, bp)
-    d5, d6 = np.einsum("ij,ij->i", ab, cp), np.einsum("ij,ij->i", ac, cp)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        denom = va + vb + vc
-        bary = np.stack([va / denom, vb / denom, vc / denom], axis=1)  # face region
-        t_ab = d1 / (d1 - d3)
-        t_ac = d2 / (d2 - d6)
-        t_bc = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-    regions = [  # first matching region wins (Ericson's order)
-        ((d1 <= 0) & (d2 <= 0), np.stack([np.ones_like(d1), 0 * d1, 0 * d1], 1)),
-        ((d3 >= 0) & (d4 <= d3), np.stack([0 * d1, np.ones_like(d1), 0 * d1], 1)),
-        ((vc <= 0) & (d1 >= 0) & (d3 <= 0), np.stack([1 - t_ab, t_ab, 0 * d1], 1)),
-        ((d6 >= 0) & (d5 <= d6), np.stack([0 * d1, 0 * d1, np.ones_like(d1)], 1)),
-        ((vb <= 0) & (d2 >= 0) & (d6 <= 0), np.stack([1 - t_ac, 0 * d1, t_ac], 1)),
-        ((va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0), np.stack([0 * d1, 1 - t_bc, t_bc], 1)),
-    ]
-    for mask, value in reversed(regions):
-        bary = np.where(mask[:, None], value, bary)
-    bary = np.nan_to_num(bary)
-    q = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
-    return q, bary
+#: Inside points this close to a sheet of the mesh inside H count this deep (voxel widths): beyond
+#: the snap and root tolerances, so neither snaps a layer onto such a sheet nor ends it there.
+SHEET = 2 * max(SNAP, ROOT_TOL)
 
 
 @dataclass(frozen=True)
@@ -61,14 +36,14 @@ class SolidDistance:
     """Exact signed distance to a closed, outward-oriented triangle mesh (negative inside).
 
     The closest triangle comes from k-d trees over triangle centroids, one per radius class so the
-    search ball stays tight; the sign from the angle-weighted pseudonormal of the closest feature
-    (face, edge or vertex), which is exact for closed manifolds (Bærentzen & Aanæs 2005).
+    search ball stays tight; the sign from the winding number (inside where it is nonzero), which
+    is right also where the mesh crosses itself or its shells overlap.
     """
 
     triangles: np.ndarray       # (F,3,3)
-    face_normals: np.ndarray    # (F,3)
-    edge_normals: np.ndarray    # (F,3,3): pseudonormal of edge k = (corner k, corner k+1)
-    corner_normals: np.ndarray  # (F,3,3): pseudonormal of the vertex at corner k
+    normals: np.ndarray         # (F,3) unit face normals
+    winding: RayWinding
+    step: float                 # offset off a face that probes the winding number on either side
     centroids: np.ndarray
     radii: np.ndarray
     trees: tuple[tuple[cKDTree, np.ndarray, float], ...]
@@ -80,15 +55,7 @@ class SolidDistance:
             raise CurvsliceError("the solid must be a closed, outward-oriented mesh to trim layers by it; "
                                  "re-run the solid stage (solid.stl) or repair the model")
         tri = np.asarray(mesh.triangles, float)
-        fn = np.asarray(mesh.face_normals, float)
         nf = len(tri)
-        edge_pn = np.zeros((len(mesh.edges_unique), 3))
-        np.add.at(edge_pn, mesh.edges_unique_inverse, np.repeat(fn, 3, axis=0))
-        edge_normals = edge_pn[mesh.edges_unique_inverse].reshape(nf, 3, 3)
-        vertex_pn = np.zeros((len(mesh.vertices), 3))
-        angles = np.asarray(mesh.face_angles, float)
-        np.add.at(vertex_pn, mesh.faces.ravel(), (angles[:, :, None] * fn[:, None, :]).reshape(-1, 3))
-        corner_normals = vertex_pn[mesh.faces]
         centroids = tri.mean(axis=1)
         radii = np.linalg.norm(tri - centroids[:, None, :], axis=2).max(axis=1)
         bound = 1.5 * float(np.median(radii))
@@ -100,10 +67,17 @@ class SolidDistance:
                 trees.append((cKDTree(centroids[sel]), sel, float(radii[sel].max())))
             remaining = np.setdiff1d(remaining, sel, assume_unique=True)
             bound *= 2
-        return cls(tri, fn, edge_normals, corner_normals, centroids, radii, tuple(trees), cKDTree(centroids))
+        step = 1e-7 * float(np.ptp(tri.reshape(-1, 3), axis=0).max())
+        return cls(tri, np.asarray(mesh.face_normals, float), RayWinding.of(tri), step, centroids, radii,
+                   tuple(trees), cKDTree(centroids))
 
-    def __call__(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distances (n,) and closest points (n,3) on ∂H."""
+    def __call__(self, points: np.ndarray, sheet: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (n,) and closest points (n,3) on the mesh.
+
+        With ``sheet`` > 0, an inside point within ``sheet`` of a sheet of the mesh that lies inside H
+        (the winding number is nonzero on both of its sides: a skin crossing into the solid, the
+        doubled part of overlapping shells) is at −``sheet``: inside, but not on ∂H -- its distance to
+        ∂H is at least that, and the trimming must neither snap it nor end a layer there."""
         p = np.asarray(points, float).reshape(-1, 3)
         if len(p) == 0:
             return np.zeros(0), np.zeros((0, 3))
@@ -123,41 +97,34 @@ class SolidDistance:
             gap = np.linalg.norm(p[own] - self.centroids[cand], axis=1) - self.radii[cand]
             keep = gap <= upper[own]
             best = self._best(p, own[keep], cand[keep], best)
-        d2, q, tri, bary = best
-        region = (bary > 0).sum(axis=1)  # 3 face, 2 edge, 1 vertex
-        rows = np.arange(len(p))
-        pn = self.face_normals[tri].copy()
-        on_edge = region == 2
-        missing = np.argmin(bary[on_edge] > 0, axis=1)  # the corner not on the edge
-        pn[on_edge] = self.edge_normals[tri[on_edge], (missing + 1) % 3]
-        at_vertex = region == 1
-        corner = np.argmax(bary[at_vertex], axis=1)
-        pn[at_vertex] = self.corner_normals[tri[at_vertex], corner]
-        side = np.sign(np.einsum("ij,ij->i", p - q, pn))
-        return side * np.sqrt(d2[rows]), q
+        d2, q, tri = best
+        d = np.sqrt(d2)
+        inside = self.winding(p) != 0
+        probe = np.flatnonzero(inside & (d <= sheet))
+        if len(probe):
+            off = self.step * self.normals[tri[probe]]
+            within = (self.winding(q[probe] + off) != 0) & (self.winding(q[probe] - off) != 0)
+            d[probe[within]] = np.maximum(d[probe[within]], sheet)
+        return np.where(inside, -d, d), q
 
     def _best(self, p: np.ndarray, owner: np.ndarray, cand: np.ndarray,
               previous: tuple[np.ndarray, ...] | None = None) -> tuple[np.ndarray, ...]:
         """Fold candidate (point, triangle) pairs into the running best per point."""
         if previous is not None and len(owner) == 0:
             return previous
-        t = self.triangles[cand]
-        q, bary = closest_on_triangles(p[owner], t[:, 0], t[:, 1], t[:, 2])
+        q = trimesh.triangles.closest_point(self.triangles[cand], p[owner])
         d2 = np.einsum("ij,ij->i", p[owner] - q, p[owner] - q)
         order = np.lexsort((d2, owner))
         first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
         if previous is None:
-            d2_out = np.full(len(p), np.inf)
-            q_out = np.zeros((len(p), 3))
-            tri_out = np.zeros(len(p), np.int64)
-            bary_out = np.zeros((len(p), 3))
+            d2_out, q_out, tri_out = np.full(len(p), np.inf), np.zeros((len(p), 3)), np.zeros(len(p), np.int64)
         else:
-            d2_out, q_out, tri_out, bary_out = (x.copy() for x in previous)
+            d2_out, q_out, tri_out = (x.copy() for x in previous)
         rows = owner[first]
         better = d2[first] < d2_out[rows]
         rows, first = rows[better], first[better]
-        d2_out[rows], q_out[rows], tri_out[rows], bary_out[rows] = d2[first], q[first], cand[first], bary[first]
-        return d2_out, q_out, tri_out, bary_out
+        d2_out[rows], q_out[rows], tri_out[rows] = d2[first], q[first], cand[first]
+        return d2_out, q_out, tri_out
 
 
 @dataclass(frozen=True)
@@ -187,9 +154,9 @@ class VoxelSides:
 
     def signed(self, distance: SolidDistance, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``distance(points)`` with the sign of every point in a voxel untouched by ∂H taken from
-        that voxel: the whole voxel lies on one side, while the pseudonormal's sign can fail beside
-        a fold of ∂H (on the cow, an edge whose faces are 174° apart said "inside" 1.3 w outside H)."""
-        d, q = distance(points)
+        that voxel: the whole voxel lies on one side (the same nonzero rule as the distance's sign,
+        so a safeguard that keeps trimming in bulk right whatever sign a distance gives off ∂H)."""
+        d, q = distance(points, SHEET * self.voxel_size)
         side = self(points)
         return np.where(side != 0, side * np.abs(d), d), q
 

@@ -124,6 +124,22 @@ def _batches(counts: np.ndarray, batch: int):
         start = stop
 
 
+def _vertical_hits(t: np.ndarray, s: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (triangle ``t`` whose xy projection has orientation ``s``, xy point ``p``): does the vertical
+    line through p cross the triangle -- on an edge shared by two triangles exactly one of them, by a
+    top-left rule -- and at which z (for the pairs that cross)."""
+    inside = np.ones(len(t), bool)
+    lam = []
+    for e0, e1 in ((1, 2), (2, 0), (0, 1)):
+        e = _edge_function(t[:, e0, :2], t[:, e1, :2], p) * s  # >0 inside for both windings
+        d = (t[:, e1, :2] - t[:, e0, :2]) * s[:, None]
+        top_left = (d[:, 1] < 0) | ((d[:, 1] == 0) & (d[:, 0] < 0))
+        inside &= (e > 0) | ((e == 0) & top_left)
+        lam.append(e)
+    lam = np.stack([x[inside] for x in lam], axis=1)  # barycentric coordinates * 2|area|
+    return inside, (lam * t[inside][:, :, 2]).sum(axis=1) / lam.sum(axis=1)
+
+
 def centres_inside(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[int, int, int]) -> np.ndarray:
     """Boolean grid: voxel centre inside the closed surface, by the winding number of a +z ray
     through every column of centres (crossings counted once by a top-left tie rule)."""
@@ -147,21 +163,74 @@ def centres_inside(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[i
         t = tri[sl][owner]
         p = origin[:2] + w * cell
         s = sign[sl][owner]
-        inside = np.ones(len(owner), bool)
-        lam = []
-        for e0, e1 in ((1, 2), (2, 0), (0, 1)):
-            e = _edge_function(t[:, e0, :2], t[:, e1, :2], p) * s  # >0 inside for both windings
-            d = (t[:, e1, :2] - t[:, e0, :2]) * s[:, None]
-            top_left = (d[:, 1] < 0) | ((d[:, 1] == 0) & (d[:, 0] < 0))
-            inside &= (e > 0) | ((e == 0) & top_left)
-            lam.append(e)
-        owner, cell, t, s = owner[inside], cell[inside], t[inside], s[inside]
-        lam = np.stack([x[inside] for x in lam], axis=1)  # barycentric coordinates * 2|area|
-        z = (lam * t[:, :, 2]).sum(axis=1) / lam.sum(axis=1)
+        inside, z = _vertical_hits(t, s, p)
+        cell, s = cell[inside], s[inside]
         k_star = np.clip(np.ceil((z - origin[2]) / w), 0, nz).astype(np.int64)  # voxels below the crossing
         np.add.at(crossings, (cell[:, 0], cell[:, 1], k_star), s.astype(np.int32))
     winding = np.cumsum(crossings[:, :, ::-1], axis=2)[:, :, ::-1][:, :, 1:]
     return winding > 0
+
+
+@dataclass(frozen=True)
+class RayWinding:
+    """Winding number of a closed, outward-oriented triangle mesh at any points: the signed count of
+    the mesh's crossings by a +z ray (+1 where it leaves through a face whose normal points up), with
+    the tie rule of :func:`centres_inside`, so a point is inside by the same nonzero rule as a voxel
+    centre. Exact where the surface crosses itself or shells overlap (winding number 2 is inside), where
+    a closest-feature sign is not. Triangles are bucketed by their xy bounding boxes."""
+
+    triangles: np.ndarray  # (F,3,3), those with a non-degenerate xy projection
+    sign: np.ndarray       # (F,) +1 normal up, -1 down
+    top: np.ndarray        # (F,) highest z
+    xy_lo: np.ndarray      # (F,2) xy bounding boxes
+    xy_hi: np.ndarray
+    members: np.ndarray    # triangles of bucket b: members[starts[b]:starts[b + 1]]
+    starts: np.ndarray
+    lo_xy: np.ndarray
+    size: float
+    dims: tuple[int, int]
+
+    @classmethod
+    def of(cls, tri: np.ndarray) -> RayWinding:
+        tri = np.asarray(tri, float)
+        a, b, c = tri[:, 0, :2], tri[:, 1, :2], tri[:, 2, :2]
+        area2 = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+        tri, area2 = tri[area2 != 0], area2[area2 != 0]
+        xy_lo, xy_hi = tri[:, :, :2].min(axis=1), tri[:, :, :2].max(axis=1)
+        lo_xy = xy_lo.min(axis=0)
+        scale = float(np.ptp(tri.reshape(-1, 3), axis=0).max())
+        size = max(2.0 * float(np.median((xy_hi - xy_lo).max(axis=1))), 1e-3 * scale)
+        b_lo = np.floor((xy_lo - lo_xy) / size).astype(np.int64)
+        b_hi = np.floor((xy_hi - lo_xy) / size).astype(np.int64)
+        dims = (int(b_hi[:, 0].max()) + 1, int(b_hi[:, 1].max()) + 1)
+        owner, cell = _expand_boxes(b_lo, b_hi)
+        bucket = cell[:, 0] * dims[1] + cell[:, 1]
+        order = np.argsort(bucket, kind="stable")
+        starts = np.searchsorted(bucket[order], np.arange(dims[0] * dims[1] + 1))
+        return cls(tri, np.sign(area2), tri[:, :, 2].max(axis=1), xy_lo, xy_hi, owner[order], starts, lo_xy, size,
+                   dims)
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """Integer winding numbers (n,) of ``points`` (n,3): 0 outside, 1 inside, 2 where shells overlap."""
+        p = np.asarray(points, float).reshape(-1, 3)
+        cell = np.floor((p[:, :2] - self.lo_xy) / self.size).astype(np.int64)
+        ok = (cell >= 0).all(axis=1) & (cell[:, 0] < self.dims[0]) & (cell[:, 1] < self.dims[1])
+        bucket = np.where(ok, cell[:, 0] * self.dims[1] + cell[:, 1], 0)
+        counts = np.where(ok, self.starts[bucket + 1] - self.starts[bucket], 0)
+        winding = np.zeros(len(p), np.int64)
+        for sl in _batches(counts, PAIR_BATCH):
+            c = counts[sl]
+            own = np.repeat(np.arange(sl.start, sl.stop), c)
+            pos = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c) + np.repeat(self.starts[bucket[sl]], c)
+            tid = self.members[pos]
+            q = p[own]
+            near = ((self.top[tid] > q[:, 2]) & (self.xy_lo[tid] <= q[:, :2]).all(axis=1)
+                    & (self.xy_hi[tid] >= q[:, :2]).all(axis=1))
+            own, tid = own[near], tid[near]
+            hit, z = _vertical_hits(self.triangles[tid], self.sign[tid], p[own, :2])
+            up = z > p[own[hit], 2]
+            winding += np.bincount(own[hit][up], self.sign[tid[hit][up]], len(p)).astype(np.int64)
+        return winding
 
 
 def surface_voxels(tri: np.ndarray, origin: np.ndarray, w: float, shape: tuple[int, int, int]) -> np.ndarray:

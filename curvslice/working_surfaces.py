@@ -5,8 +5,9 @@ For every layer l (print order) the surface S_l is built in three steps:
 
 1. **Continued field.** G is an integer per voxel of H̄ (0 = empty or missed). Missed voxels get the
    layer the growth would have given them next (1 + the least G of their 18 AM-stable neighbours,
-   Definition 1, Alg. 1's rule); two rings of empty voxels around H̄ get a first-order extrapolation
-   of G from their neighbours; the platform below z = 0 is layer 0. Both rings are cell corners, so
+   Definition 1, Alg. 1's rule; a guess, so the jump rule of step 2 does not apply to them: cheburashka
+   0.8 mm ended layer 60 inside H at a "jump" between two missed voxels); two rings of empty voxels
+   around H̄ get a first-order extrapolation of G from their neighbours; the platform below z = 0 is layer 0. Both rings are cell corners, so
    an isosurface cut off by the domain ends in cells no voxel of H̄ touches: its untrimmed boundary
    lies outside H̄ ⊇ H (§3.4.5: "as long as ∂S* is always outside H"). On an edge leaving H̄ a crossing stays in the empty voxel's half, outside H.
 2. **Dual contouring** (Ju et al. 2002, the thesis's [52]) at the isovalue of layer l on its narrow
@@ -17,9 +18,9 @@ For every layer l (print order) the surface S_l is built in three steps:
    sign-changing cell from the QEF (truncated pseudo-inverse around the mass point, the vertex kept
    in the bounding box of its cell's Hermite points); one quad per crossing edge, split along its
    shorter diagonal and oriented along +∇G (towards later layers).
-3. **Trimming by H** (:mod:`curvslice.trimming`): vertices are classified by an exact signed distance to ∂H (closest triangle
-   feature + angle-weighted pseudonormal, Bærentzen & Aanæs 2005; voxels untouched by ∂H decide in
-   bulk), triangles are clipped along the zero set, and every new boundary vertex is placed on ∂H by
+3. **Trimming by H** (:mod:`curvslice.trimming`): vertices are classified by a signed distance to ∂H (exact
+   distance to the closest triangle, sign by the winding number of a +z ray, right also where ∂H crosses
+   itself; voxels untouched by ∂H decide in bulk), triangles are clipped along the zero set, and every new boundary vertex is placed on ∂H by
    regula falsi on the signed distance. So ∂S_l lies on ∂H, except where layer l's own voxels end
    inside H (next to a jump of G).
 
@@ -164,8 +165,8 @@ def continue_field(growing: np.ndarray, occupied: np.ndarray, origin: np.ndarray
     g = np.full(shape, np.nan)
     inner = g[PAD:-PAD, PAD:-PAD, PAD:-PAD]
     inner[growing > 0] = growing[growing > 0]
-    _grow_into(g, occ & ~np.isfinite(g))
-    grown = np.isfinite(g)
+    grown = np.isfinite(g)  # before the missed voxels get their guessed layers: no jumps among those
+    _grow_into(g, occ & ~grown)
     cube = np.ones((3, 3, 3), bool)
     near1 = ndimage.binary_dilation(occ, cube)
     near2 = ndimage.binary_dilation(near1, cube)
