@@ -224,7 +224,7 @@ class RayWinding:
             pos = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c) + np.repeat(self.starts[bucket[sl]], c)
             tid = self.members[pos]
             q = p[own]
-            near = ((self.top[tid] > q[:, 2]) & (self.xy_lo[tid] <= q[:, :2]).all(axis=1)
+            near = ((self.top[tid] >= q[:, 2]) & (self.xy_lo[tid] <= q[:, :2]).all(axis=1)
                     & (self.xy_hi[tid] >= q[:, :2]).all(axis=1))
             own, tid = own[near], tid[near]
             hit, z = _vertical_hits(self.triangles[tid], self.sign[tid], p[own, :2])

@@ -154,7 +154,7 @@ def test_signed_distance_matches_the_analytic_one(solid):
     if solid == "box":
         mesh = trimesh.creation.box(extents=[4.0, 6.0, 8.0])
         half = np.array([2.0, 3.0, 4.0])
-        # many points near edges and corners, where only the pseudonormal gets the sign right
+        # many points near edges and corners, where a closest-feature sign is delicate
         pts = rng.choice([-1, 1], (4000, 3)) * half + rng.normal(scale=0.3, size=(4000, 3))
         q = np.abs(pts) - half
         exact = np.linalg.norm(np.maximum(q, 0), axis=1) + np.minimum(q.max(axis=1), 0)
