@@ -71,8 +71,10 @@ class SolidDistance:
         return cls(tri, np.asarray(mesh.face_normals, float), RayWinding.of(tri), step, centroids, radii,
                    tuple(trees), cKDTree(centroids))
 
-    def __call__(self, points: np.ndarray, sheet: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distances (n,) and closest points (n,3) on the mesh.
+    def __call__(self, points: np.ndarray, sheet: float = 0.0, side: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (n,) and closest points (n,3) on the mesh; ``side`` (n,), where nonzero,
+        is each point's side known in advance (−1 inside, +1 outside), which spares its ray.
 
         With ``sheet`` > 0, an inside point within ``sheet`` of a sheet of the mesh that lies inside H
         (the winding number is nonzero on both of its sides: a skin crossing into the solid, the
@@ -99,7 +101,9 @@ class SolidDistance:
             best = self._best(p, own[keep], cand[keep], best)
         d2, q, tri = best
         d = np.sqrt(d2)
-        inside = self.winding(p) != 0
+        inside = np.zeros(len(p), bool) if side is None else np.asarray(side) < 0
+        ray = np.ones(len(p), bool) if side is None else np.asarray(side) == 0
+        inside[ray] = self.winding(p[ray]) != 0
         probe = np.flatnonzero(inside & (d <= sheet))
         if len(probe):
             off = self.step * self.normals[tri[probe]]
@@ -156,8 +160,8 @@ class VoxelSides:
         """``distance(points)`` with the sign of every point in a voxel untouched by ∂H taken from
         that voxel: the whole voxel lies on one side (the same nonzero rule as the distance's sign,
         so a safeguard that keeps trimming in bulk right whatever sign a distance gives off ∂H)."""
-        d, q = distance(points, SHEET * self.voxel_size)
         side = self(points)
+        d, q = distance(points, SHEET * self.voxel_size, side)
         return np.where(side != 0, side * np.abs(d), d), q
 
 

@@ -177,15 +177,18 @@ class RayWinding:
     the mesh's crossings by a +z ray (+1 where it leaves through a face whose normal points up), with
     the tie rule of :func:`centres_inside`, so a point is inside by the same nonzero rule as a voxel
     centre. Exact where the surface crosses itself or shells overlap (winding number 2 is inside), where
-    a closest-feature sign is not. Triangles are bucketed by their xy bounding boxes."""
+    a closest-feature sign is not. Triangles are bucketed by their xy bounding boxes, highest first within a
+    bucket, so a point's candidates are the prefix that reaches above it."""
 
     triangles: np.ndarray  # (F,3,3), those with a non-degenerate xy projection
     sign: np.ndarray       # (F,) +1 normal up, -1 down
-    top: np.ndarray        # (F,) highest z
     xy_lo: np.ndarray      # (F,2) xy bounding boxes
     xy_hi: np.ndarray
-    members: np.ndarray    # triangles of bucket b: members[starts[b]:starts[b + 1]]
+    members: np.ndarray    # triangles of bucket b: members[starts[b]:starts[b + 1]], highest top first
     starts: np.ndarray
+    keys: np.ndarray       # per member: bucket + depth of its top below the highest top, in [0, 1)
+    z_top: float
+    z_span: float
     lo_xy: np.ndarray
     size: float
     dims: tuple[int, int]
@@ -199,16 +202,19 @@ class RayWinding:
         xy_lo, xy_hi = tri[:, :, :2].min(axis=1), tri[:, :, :2].max(axis=1)
         lo_xy = xy_lo.min(axis=0)
         scale = float(np.ptp(tri.reshape(-1, 3), axis=0).max())
-        size = max(2.0 * float(np.median((xy_hi - xy_lo).max(axis=1))), 1e-3 * scale)
+        size = max(float(np.median((xy_hi - xy_lo).max(axis=1))), 1e-3 * scale)
         b_lo = np.floor((xy_lo - lo_xy) / size).astype(np.int64)
         b_hi = np.floor((xy_hi - lo_xy) / size).astype(np.int64)
         dims = (int(b_hi[:, 0].max()) + 1, int(b_hi[:, 1].max()) + 1)
         owner, cell = _expand_boxes(b_lo, b_hi)
         bucket = cell[:, 0] * dims[1] + cell[:, 1]
-        order = np.argsort(bucket, kind="stable")
+        top = tri[:, :, 2].max(axis=1)
+        z_top, z_span = float(top.max()), 2.0 * float(np.ptp(tri[:, :, 2])) + 1.0
+        keys = bucket + (z_top - top[owner]) / z_span
+        order = np.argsort(keys, kind="stable")
         starts = np.searchsorted(bucket[order], np.arange(dims[0] * dims[1] + 1))
-        return cls(tri, np.sign(area2), tri[:, :, 2].max(axis=1), xy_lo, xy_hi, owner[order], starts, lo_xy, size,
-                   dims)
+        return cls(tri, np.sign(area2), xy_lo, xy_hi, owner[order], starts, keys[order], z_top, z_span, lo_xy,
+                   size, dims)
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
         """Integer winding numbers (n,) of ``points`` (n,3): 0 outside, 1 inside, 2 where shells overlap."""
@@ -216,16 +222,17 @@ class RayWinding:
         cell = np.floor((p[:, :2] - self.lo_xy) / self.size).astype(np.int64)
         ok = (cell >= 0).all(axis=1) & (cell[:, 0] < self.dims[0]) & (cell[:, 1] < self.dims[1])
         bucket = np.where(ok, cell[:, 0] * self.dims[1] + cell[:, 1], 0)
-        counts = np.where(ok, self.starts[bucket + 1] - self.starts[bucket], 0)
+        depth = np.clip((self.z_top - p[:, 2]) / self.z_span, 0.0, 0.75)  # a top at the point's height counts
+        counts = np.where(ok, np.searchsorted(self.keys, bucket + depth, side="right") - self.starts[bucket], 0)
         winding = np.zeros(len(p), np.int64)
         for sl in _batches(counts, PAIR_BATCH):
             c = counts[sl]
             own = np.repeat(np.arange(sl.start, sl.stop), c)
             pos = np.arange(c.sum()) - np.repeat(np.cumsum(c) - c, c) + np.repeat(self.starts[bucket[sl]], c)
             tid = self.members[pos]
-            q = p[own]
-            near = ((self.top[tid] >= q[:, 2]) & (self.xy_lo[tid] <= q[:, :2]).all(axis=1)
-                    & (self.xy_hi[tid] >= q[:, :2]).all(axis=1))
+            x, y = p[own, 0], p[own, 1]
+            lo, hi = self.xy_lo[tid], self.xy_hi[tid]
+            near = (lo[:, 0] <= x) & (lo[:, 1] <= y) & (hi[:, 0] >= x) & (hi[:, 1] >= y)
             own, tid = own[near], tid[near]
             hit, z = _vertical_hits(self.triangles[tid], self.sign[tid], p[own, :2])
             up = z > p[own[hit], 2]

@@ -256,7 +256,7 @@ def test_a_wrong_sign_far_from_the_solid_does_not_change_the_trim():
     sides = VoxelSides.of(cube, np.full(3, xs[0]), w, (n, n, n))
     true = SolidDistance.of(cube)
 
-    def wrong(points, sheet=0.0):
+    def wrong(points, sheet=0.0, side=None):
         d, q = true(points, sheet)
         return np.where(sides(points) != 0, -d, d), q
 
