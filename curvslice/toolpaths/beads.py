@@ -359,8 +359,6 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     return np.split(pts, stop[:-1]), np.split(bead, stop[:-1])
 
 
-
-
 def trim_seams(pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Pieces whose two ends meet head-on across a seam (a loop's walk: the path, continued past
     its end, would run into its start, more than two beads away along it) trimmed back equally at
