@@ -20,8 +20,8 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9), one module per
    the passes tile the layer despite uneven spacing), ridge passes of thin walls
    (:func:`thin_passes`), gap passes where the widest beads still leave surface open
    (:func:`gap_passes`), redundant slivers dropped (:func:`needed_pieces`), beads widened over
-   what the fit leaves past tips and corners (:func:`fill_slivers`), self-crossings removed
-   (:func:`uncross`);
+   what the fit leaves past tips and corners (:func:`fill_slivers`), a loop's ends trimmed where
+   their caps meet head-on (:func:`trim_seams`), self-crossings removed (:func:`uncross`);
 5. :mod:`~curvslice.toolpaths.resampling`: re-sampling at ``step`` (1 mm in the thesis, §3.5.2),
    keeping sharp corners, bends and the bead width profile;
 6. extrusion per segment from length × bead width × local layer thickness (volume
@@ -33,7 +33,7 @@ part's seam point, or where the previous layer ended: :data:`START_RULES`), and 
 (:func:`save_toolpaths`); every tuning constant is in :mod:`~curvslice.toolpaths.constants`.
 """
 
-from curvslice.toolpaths.beads import fill_slivers, fit_beads, needed_pieces, surface_samples
+from curvslice.toolpaths.beads import fill_slivers, fit_beads, needed_pieces, surface_samples, trim_seams
 from curvslice.toolpaths.passes import gap_passes, thin_passes, uncross
 from curvslice.toolpaths.plan import (START_RULES, LayerPaths, ToolpathSettings, Toolpaths, bridge_small_holes,
                                       clean_surface, layer_paths, plan_toolpaths, save_toolpaths)
@@ -43,4 +43,4 @@ from curvslice.toolpaths.rings import Bands, Ring, contour_gap, contour_rings, p
 __all__ = ["START_RULES", "Bands", "LayerPaths", "Ring", "ToolpathSettings", "Toolpaths", "bridge_small_holes", "clean_surface",
            "contour_gap", "contour_rings", "extrusion_amounts", "fill_slivers", "fit_beads", "gap_passes",
            "layer_paths", "needed_pieces", "peak_rings", "plan_toolpaths", "prune_islands", "resample",
-           "save_toolpaths", "surface_samples", "thin_passes", "uncross"]
+           "save_toolpaths", "surface_samples", "thin_passes", "trim_seams", "uncross"]

@@ -11,7 +11,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from curvslice.toolpaths.constants import (BEAD_RANGE, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
-                                           OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS)
+                                           OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS, SEAM_CHORD)
 from curvslice.toolpaths.passes import gap_passes
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
@@ -48,6 +48,7 @@ def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarra
             refit = _fit_owned(surface, samples, kept, width, min_bead)
         pieces, widths = refit
     widths = fill_slivers(samples[0], pieces, widths, width)
+    pieces, widths = trim_seams(pieces, widths, width)
     return pieces, widths, int(is_gap[needed].sum())
 
 
@@ -357,3 +358,35 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     pts[last] += grow[last, None] * tan[last]
     return np.split(pts, stop[:-1]), np.split(bead, stop[:-1])
 
+
+def trim_seams(pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Pieces whose two ends meet head-on across a seam (a loop's walk: the path, continued past
+    its end, would run into its start, more than two beads away along it) trimmed back equally at
+    both ends, by at most half their mean end bead, until the chord between the ends is
+    ``SEAM_CHORD`` of that bead: the round caps then cover as much surface twice as they leave
+    open between them. The fit widens the end beads of a small loop up to the widest bead, while
+    its walk stops one width short of its start, so the caps overlapped (homer 0.8 layer 91: a
+    loop 4.6 w long, 1.6 w end beads 0.95 w apart, 7.6 % overlap)."""
+    out_p, out_w = [], []
+    for p, b in zip(pieces, widths):
+        out_p.append(p)
+        out_w.append(b)
+        if len(p) < 3:
+            continue
+        cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+        total, gap = cum[-1], p[0] - p[-1]
+        head_on = np.dot(gap, p[-1] - p[-2]) > 0 and np.dot(gap, p[1] - p[0]) > 0
+        if not head_on or total <= 2.0 * max(float(b.max()), width) + np.linalg.norm(gap):
+            continue
+        trims = np.linspace(0.0, 0.25 * (b[0] + b[-1]), 51)
+        s = np.stack([trims, total - trims], axis=1)
+        ends = np.stack([np.interp(s, cum, p[:, i]) for i in range(3)], axis=-1)
+        bead = np.interp(s, cum, b)
+        apart = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) >= SEAM_CHORD * bead.mean(axis=1)
+        if apart[0] or not apart.any():
+            continue
+        k = int(np.argmax(apart))
+        keep = (cum > trims[k]) & (cum < total - trims[k])
+        out_p[-1] = np.vstack([ends[k, :1], p[keep], ends[k, 1:]])
+        out_w[-1] = np.r_[bead[k, 0], b[keep], bead[k, 1]]
+    return out_p, out_w

@@ -194,6 +194,14 @@ MINOR_SHARE = 0.005
 #: another piece, or the same piece more than this many beads (at least widths) away along it --
 #: a spiral's next ring, not the bead's own continuation.
 SAME_PASS_BEADS = 2.0
+#: :func:`~curvslice.toolpaths.beads.trim_seams`: the chord between a loop's two ends, in beads, at
+#: which their round caps cover as much surface twice (the lens where they meet) as they leave open
+#: (the wedges beside it). On a strip of bead ``b``, ends ``d`` apart: the caps' two half-discs,
+#: ``π b²/4``, fill the strip between the ends, ``d·b``, less the open wedges plus the lens, so the two
+#: are equal at ``d = (π/4)·b`` -- where the caps' material is exactly what the strip between them
+#: takes (a bead apart, the caps touch and leave ``(1 - π/4)·b²`` open; at 0.6 b the lens is 0.19 b²
+#: larger than the wedges).
+SEAM_CHORD = float(np.pi / 4.0)
 
 # ----------------------------------------------------------------------------- re-sampling (resampling.py)
 
