@@ -151,15 +151,15 @@ def extruder_hits(cell: Workcell, positions: np.ndarray, direction: np.ndarray, 
         return out
     R = plane_frame(np.asarray(direction, float), np.zeros(3))[:3, :3]
     local = (np.asarray(obstacles)[None, :, :] - np.asarray(positions)[:, None, :]) @ R  # (S, O, 3) in N, untilted
-    reach = max(float(np.linalg.norm(_hull_points(b), axis=1).max()) for b in cell.extruder)
+    hulls = [_hull_points(b) for b in cell.extruder]
+    reach = max(float(np.linalg.norm(h, axis=1).max()) for h in hulls)
     s_idx, o_idx = np.nonzero((local[:, :, 2] > above) & (np.einsum("soi,soi->so", local, local) <= reach * reach))
     pts = local[s_idx, o_idx]
     radius = np.hypot(pts[:, 0], pts[:, 1])
     phi = 2 * np.pi * np.arange(turns) / turns
     c, s = np.cos(phi), np.sin(phi)
     inside = np.zeros((len(pts), turns), bool)
-    for body in cell.extruder:
-        hull = _hull_points(body)  # turns keep a point's height and distance from the axis: a first filter
+    for body, hull in zip(cell.extruder, hulls):  # turns keep a point's height and distance from the axis: a first filter
         near = np.flatnonzero((pts[:, 2] >= hull[:, 2].min()) & (pts[:, 2] <= hull[:, 2].max())
                               & (radius <= np.hypot(hull[:, 0], hull[:, 1]).max()))
         p = pts[near]

@@ -142,6 +142,9 @@ class Access:
         first = turn_hits(self.cell, at, plane.normal, plane.offset, self.points(ancestors))
         if first.all(axis=1).any():
             return False
+        if not others or not (first | turn_hits(self.cell, at, plane.normal, plane.offset,
+                                                self.points([q.solid for q in others.values()]))).all(axis=1).any():
+            return True
         per = {i: turn_hits(self.cell, at, plane.normal, plane.offset, self.points([q.solid])) for i, q in others.items()}
         blockers = [i for i, h in per.items() if (first | h).all(axis=1).any()]
         rest = np.logical_or.reduce([first, *(h for i, h in per.items() if i not in blockers)])
@@ -346,7 +349,16 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                 continue
             piece = pieces[g]
             base_area = 0.99 * _base_area(piece.solid, piece.base, piece.parent is None)
-            valid = 0
+            anc = _ancestors(pieces, g)
+
+            def printable(c: tuple) -> bool:
+                # g's ancestors are printed before the new part (g's rest lies under the plane), the
+                # parts standing on it after it, the others in an order the extruder allows
+                after = _descendants(pieces, _moved_children(pieces, g, c[2]))
+                return access.printable(c[7], c[2], [pieces[i].solid for i in anc],
+                                        {i: q for i, q in pieces.items() if i != g and i not in anc | after})
+
+            valid = []  # the extruder test, the costliest, only on the best of each batch of valid planes
             for _, plane in rank_cuts(piece, root_direction, s)[: s.exact_candidates]:
                 below, above = split(piece.solid, plane)
                 if len(below.decompose()) != 1 or not above:
@@ -367,24 +379,20 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                 if any(sections_intersect(plane, section, q.base, q.section) for i, q in pieces.items() if i != g) \
                         or sections_intersect(plane, section, piece.base, piece.section):
                     continue
-                # g's ancestors are printed before the new part (g's rest lies under the plane), the
-                # parts standing on it after it, the others in an order the extruder allows
-                anc = _ancestors(pieces, g)
-                after = _descendants(pieces, _moved_children(pieces, g, plane))
-                if not access.printable(top_mesh, plane, [pieces[i].solid for i in anc],
-                                        {i: q for i, q in pieces.items() if i != g and i not in anc | after}):
-                    continue
-                if best is None or gain > best[0]:
-                    best = (gain, g, plane, below, top, above, section)
-                valid += 1
-                if valid == s.valid_candidates:
-                    break
+                valid.append((gain, g, plane, below, top, above, section, top_mesh))
+                if len(valid) == s.valid_candidates:
+                    best = next((c for c in sorted(valid, key=lambda c: -c[0]) if printable(c)), None)
+                    if best is not None:
+                        break
+                    valid = []
+            if best is None and valid:
+                best = next((c for c in sorted(valid, key=lambda c: -c[0]) if printable(c)), None)
             if best is not None:
                 break  # the riskiest part that can be improved is refined first
             stuck[g] = piece.solid
         if best is None:
             break
-        _, g, plane, below, top, above, section = best
+        _, g, plane, below, top, above, section, _ = best
         new = max(pieces) + 1
         for i in _moved_children(pieces, g, plane):  # children standing on the cut-off top now stand on the new part
             pieces[i].parent = new
