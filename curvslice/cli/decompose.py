@@ -3,7 +3,9 @@
 Writes one mesh per part (``part_XX.stl``, in printing order), ``parts.json`` (each part's base
 plane, build direction, parent, T_P^E of Eq. 2.3, risky area) and ``report.json``. With ``--print``
 also the planar layers of every part (``layers/``) and the tool-paths of the whole sequence in the
-platform frame (``toolpaths.npz``, ``toolpaths.gcode``), by the working-surface and tool-path stages.
+platform frame (``toolpaths.npz``, ``toolpaths.gcode``), by the working-surface and tool-path stages;
+the decomposition is then made for that layer height (no part thinner than two layers, faces within
+one layer over the platform printed on it; 1 mm without ``--print``).
 """
 
 from __future__ import annotations
