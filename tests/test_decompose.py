@@ -384,3 +384,30 @@ def test_fine_decomposition_avoids_a_cut_the_extruder_cannot_print():
         results[workcell] = int(extruder_hits(cell, new.vertices, pieces[2].base.normal, earlier).all(axis=1).sum())
     assert results[None] > 50  # the cut the thesis's search takes leaves a part the extruder cannot print
     assert results["ur3"] == 0
+
+
+def test_verify_counts_a_ceiling_within_one_layer_over_the_platform_as_printed_on_it(tmp_path):
+    """A 20 x 20 x 10 block with a 10 x 10 pocket 1.5 mm deep under it: the pocket's ceiling faces straight
+    down 1.5 mm over the platform (100 mm²). Printed in 2 mm layers it lies in the first layer, on the
+    platform; in 1 mm layers it hangs."""
+    import json
+
+    from curvslice.decompose.parts import part_pose, plane_frame
+    from curvslice.verify.decompose import checks
+
+    block = m3.Manifold.cube((20, 20, 10)).translate((-10, -10, 0)) - m3.Manifold.cube((10, 10, 2.5)).translate((-5, -5, -1))
+    mesh = to_trimesh(block)
+    mesh.export(tmp_path / "part_00.stl")
+    mesh.export(tmp_path / "solid.stl")
+    up = Plane(np.array([0.0, 0.0, 1.0]), 0.0)
+    for layer, risky in ((2.0, 0.0), (1.0, 100.0)):
+        part = {"file": "part_00.stl", "sequence": 0, "parent": None,
+                "base_plane": {"normal": up.normal.tolist(), "offset_mm": 0.0}, "build_direction": up.normal.tolist(),
+                "base_centre_mm": [0.0, 0.0, 0.0], "risky_area_mm2": risky, "risky_underside_mm2": risky,
+                "T_P_E": part_pose(up, np.zeros(3), plane_frame(up.normal, np.zeros(3))).tolist()}
+        (tmp_path / "parts.json").write_text(json.dumps({"alpha_max_deg": 45.0, "first_layer_mm": 0.5, "underside_mm": 5.0,
+                                                         "platform_layer_mm": layer, "root_direction": [0, 0, 1],
+                                                         "parts": [part]}))
+        by_name = {c.name: c for c in checks(tmp_path)}
+        assert by_name["risky area per part"].passed  # the reported area is the recomputed one
+        assert by_name["every part support-free"].passed == (risky == 0.0)
