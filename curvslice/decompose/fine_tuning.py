@@ -329,7 +329,8 @@ def rank_cuts(piece: Piece, root_direction: np.ndarray, s: Settings) -> list[tup
 
 def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction: np.ndarray, total_volume: float,
                        s: Settings) -> list[Cut]:
-    """Greedy refinement by optimal cutting planes (Eq. 2.2) under Constraints I and II."""
+    """Greedy refinement by optimal cutting planes (Eq. 2.2) under Constraints I and II, the platform
+    clearance, the least part thickness and accessibility (module docstring)."""
     known: dict[int, tuple[manifold3d.Manifold, float]] = {}
     # parts with no valid plane stay so while their solid is unchanged: a new part only adds a base
     # section for Constraint I to keep apart from (the bunny's root, unimprovable, was re-searched every round)
@@ -349,15 +350,6 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                 continue
             piece = pieces[g]
             base_area = 0.99 * _base_area(piece.solid, piece.base, piece.parent is None)
-            anc = _ancestors(pieces, g)
-
-            def printable(c: tuple) -> bool:
-                # g's ancestors are printed before the new part (g's rest lies under the plane), the
-                # parts standing on it after it, the others in an order the extruder allows
-                after = _descendants(pieces, _moved_children(pieces, g, c[2]))
-                return access.printable(c[7], c[2], [pieces[i].solid for i in anc],
-                                        {i: q for i, q in pieces.items() if i != g and i not in anc | after})
-
             valid = []  # the extruder test, the costliest, only on the best of each batch of valid planes
             for _, plane in rank_cuts(piece, root_direction, s)[: s.exact_candidates]:
                 below, above = split(piece.solid, plane)
@@ -381,12 +373,12 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                     continue
                 valid.append((gain, g, plane, below, top, above, section, top_mesh))
                 if len(valid) == s.valid_candidates:
-                    best = next((c for c in sorted(valid, key=lambda c: -c[0]) if printable(c)), None)
+                    best = _best_printable(valid, pieces, access)
                     if best is not None:
                         break
                     valid = []
             if best is None and valid:
-                best = next((c for c in sorted(valid, key=lambda c: -c[0]) if printable(c)), None)
+                best = _best_printable(valid, pieces, access)
             if best is not None:
                 break  # the riskiest part that can be improved is refined first
             stuck[g] = piece.solid
@@ -400,6 +392,20 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
         pieces[new] = Piece(top, plane, g, section)
         cuts.append(Cut(g, new, plane, np.array([centroid(c) for c in above]), np.zeros((0, 3))))
     return cuts
+
+
+def _best_printable(valid: list[tuple], pieces: dict[int, Piece], access: Access) -> tuple | None:
+    """The valid cut of largest gain whose new part the extruder can print: the holder's ancestors are
+    printed before it (the holder's rest lies under the plane), the parts standing on it after it,
+    the others in an order the extruder allows (:meth:`Access.printable`)."""
+    for c in sorted(valid, key=lambda c: -c[0]):
+        _, g, plane, *_, top_mesh = c
+        anc = _ancestors(pieces, g)
+        after = _descendants(pieces, _moved_children(pieces, g, plane))
+        if access.printable(top_mesh, plane, [pieces[i].solid for i in anc],
+                            {i: q for i, q in pieces.items() if i != g and i not in anc | after}):
+            return c
+    return None
 
 
 def _moved_children(pieces: dict[int, Piece], g: int, plane: Plane) -> list[int]:
