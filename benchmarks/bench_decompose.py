@@ -64,6 +64,8 @@ def decomposition_case(path: Path, print_parts: bool = False, voxel: float = 1.0
            "support_free": sum(a <= 1.0 for a in risky),
            "support_free_beyond_underside": sum(a - p.risky_underside <= 1.0 for a, p in zip(risky, dec.parts)),
            "constraint_one": dec.constraint_one_violations(), "constraint_two": dec.constraint_two_violations(),
+           # parts with a sampled nozzle position where no turn of the UR3 extruder clears the earlier parts
+           "extruder_blocked_parts": sum(b > 0 for b, _ in dec.extruder_blocked),
            "volume_error": abs(sum(p.mesh.volume for p in dec.parts) - solid.volume) / solid.volume}
     if print_parts:
         with tempfile.TemporaryDirectory() as tmp:
@@ -93,7 +95,8 @@ def table_2_1_lines(rows: list[dict]) -> list[str]:
                   f"(load {r['loadavg']:.1f}) | {rat(r['wall_s'], 'decomposition')} |",
                   f"| {m} | parts (support-free) | – | {r['parts']} ({r['support_free']}; "
                   f"{r['support_free_beyond_underside']}) | – |",
-                  f"| {m} | Constraint I / II violations | – | {len(r['constraint_one'])} / {len(r['constraint_two'])} | – |"]
+                  f"| {m} | Constraint I / II violations | – | {len(r['constraint_one'])} / {len(r['constraint_two'])} | – |",
+                  f"| {m} | parts the extruder cannot reach | – | {r.get('extruder_blocked_parts', '–')} | – |"]
         if "fabrication_min" in r:
             lines.append(f"| {m} | fabrication min | {ref.get('fabrication_min', '–')} | {r['fabrication_min']:.0f} "
                          f"({r['samples']:,} samples, {r['layers']} layers) | {rat(r['fabrication_min'], 'fabrication_min')} |")
@@ -130,7 +133,8 @@ def main() -> None:
               + "; of it on the underside: " + ", ".join(f"{a:.1f}" for a in r["underside_mm2"]))
         print(f"  support-free (≤ 1 mm²): {r['support_free']}/{r['parts']}, beyond the underside: "
               f"{r['support_free_beyond_underside']}/{r['parts']}; Constraint I violations: {r['constraint_one']}, "
-              f"Constraint II violations: {r['constraint_two']}, volume error {r['volume_error']:.2e}")
+              f"Constraint II violations: {r['constraint_two']}, volume error {r['volume_error']:.2e}; "
+              f"parts the extruder cannot reach: {r['extruder_blocked_parts']}")
     print("\n".join(table_2_1_lines(rows)))
     if args.placement:
         placement_rows(args.samples)

@@ -348,3 +348,66 @@ def test_fabrication_minutes_of_a_square_and_a_jump(tmp_path):
     cell = load_workcell("ur3")
     assert cell.travel_speed == 50.0  # the figure the expectation uses
     assert fabrication_minutes(tmp_path) == pytest.approx((40 / 10 + 50 / 50) / 60)
+
+
+def test_fine_decomposition_avoids_a_cut_the_extruder_cannot_print():
+    """A slab printed first with a 60 mm wall at x = 40, and standing on it a post with a flare and an
+    arm leaning 55° towards the wall (108 mm² risky along +z). Without the extruder the Eq. 2.2 search
+    cuts the arm off along a plane leaning 27° towards the wall, and the UR3 extruder printing that part
+    meets the wall at every turn at many of its vertices; with it, the search takes another plane that
+    leaves every part support-free and every vertex of the new part a clear turn."""
+    from curvslice.decompose.constraints import extruder_hits
+    from curvslice.decompose.fine_tuning import Piece, Settings, fine_decomposition, part_risk
+    from curvslice.workcell import load_workcell
+
+    up = np.array([0.0, 0.0, 1.0])
+    root = (m3.Manifold.cube((90, 30, 6)).translate((-45, -15, 0))
+            + m3.Manifold.cube((6, 30, 60)).translate((40, -15, 0))).refine_to_length(2.0)
+    flare = 8 * np.tan(np.radians(40))  # a 40° flare: self-supported printed upright, not when tilted over 5°
+    post = (m3.Manifold.cylinder(8, 6, 6, 32).translate((-15, 0, 6))
+            + m3.Manifold.cylinder(8, 6, 6 + flare, 32).translate((-15, 0, 14))
+            + m3.Manifold.cylinder(4, 6 + flare, 6 + flare, 32).translate((-15, 0, 22)))
+    arm = m3.Manifold.cylinder(25, 4, 4, 32).rotate((0, 55, 0)).translate((-7, 0, 23))
+    g = (post + arm).refine_to_length(2.0)
+    cell = load_workcell("ur3")
+    results = {}
+    for workcell in (None, "ur3"):
+        s = Settings(workcell=workcell)
+        pieces = {0: Piece(root, Plane(up, 0.0), None, cross_section(root, Plane(up, 0.0), 0.5)),
+                  1: Piece(g, Plane(up, 6.0), 0, cross_section(g, Plane(up, 6.0)))}
+        assert part_risk(pieces[1], s.alpha_max) > 100.0
+        cuts = fine_decomposition(pieces, [], up, root.volume() + g.volume(), s)
+        assert len(cuts) == 1 and set(pieces) == {0, 1, 2} and pieces[2].parent == 1
+        assert max(part_risk(p, s.alpha_max) for p in pieces.values()) < 1.0
+        new = to_trimesh(pieces[2].solid)
+        earlier = np.vstack([to_trimesh(pieces[i].solid).vertices for i in (0, 1)])
+        results[workcell] = int(extruder_hits(cell, new.vertices, pieces[2].base.normal, earlier).all(axis=1).sum())
+    assert results[None] > 50  # the cut the thesis's search takes leaves a part the extruder cannot print
+    assert results["ur3"] == 0
+
+
+def test_verify_counts_a_ceiling_within_one_layer_over_the_platform_as_printed_on_it(tmp_path):
+    """A 20 x 20 x 10 block with a 10 x 10 pocket 1.5 mm deep under it: the pocket's ceiling faces straight
+    down 1.5 mm over the platform (100 mm²). Printed in 2 mm layers it lies in the first layer, on the
+    platform; in 1 mm layers it hangs."""
+    import json
+
+    from curvslice.decompose.parts import part_pose, plane_frame
+    from curvslice.verify.decompose import checks
+
+    block = m3.Manifold.cube((20, 20, 10)).translate((-10, -10, 0)) - m3.Manifold.cube((10, 10, 2.5)).translate((-5, -5, -1))
+    mesh = to_trimesh(block)
+    mesh.export(tmp_path / "part_00.stl")
+    mesh.export(tmp_path / "solid.stl")
+    up = Plane(np.array([0.0, 0.0, 1.0]), 0.0)
+    for layer, risky in ((2.0, 0.0), (1.0, 100.0)):
+        part = {"file": "part_00.stl", "sequence": 0, "parent": None,
+                "base_plane": {"normal": up.normal.tolist(), "offset_mm": 0.0}, "build_direction": up.normal.tolist(),
+                "base_centre_mm": [0.0, 0.0, 0.0], "risky_area_mm2": risky, "risky_underside_mm2": risky,
+                "T_P_E": part_pose(up, np.zeros(3), plane_frame(up.normal, np.zeros(3))).tolist()}
+        (tmp_path / "parts.json").write_text(json.dumps({"alpha_max_deg": 45.0, "first_layer_mm": 0.5, "underside_mm": 5.0,
+                                                         "platform_layer_mm": layer, "root_direction": [0, 0, 1],
+                                                         "parts": [part]}))
+        by_name = {c.name: c for c in checks(tmp_path)}
+        assert by_name["risky area per part"].passed  # the reported area is the recomputed one
+        assert by_name["every part support-free"].passed == (risky == 0.0)

@@ -3,7 +3,9 @@
 Writes one mesh per part (``part_XX.stl``, in printing order), ``parts.json`` (each part's base
 plane, build direction, parent, T_P^E of Eq. 2.3, risky area) and ``report.json``. With ``--print``
 also the planar layers of every part (``layers/``) and the tool-paths of the whole sequence in the
-platform frame (``toolpaths.npz``, ``toolpaths.gcode``), by the working-surface and tool-path stages.
+platform frame (``toolpaths.npz``, ``toolpaths.gcode``), by the working-surface and tool-path stages;
+the decomposition is then made for that layer height (no part thinner than two layers, faces within
+one layer over the platform printed on it; 1 mm without ``--print``).
 """
 
 from __future__ import annotations
@@ -37,8 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="simplification tolerance of the shape-analysis copy, mm (parts are cut from the full mesh)")
     p.add_argument("--max-parts", type=int, default=Settings.max_parts, help="stop the fine decomposition here")
     p.add_argument("--workcell", default="ur3",
-                   help="workcell (name or JSON) whose extruder every part must clear the platform with at its tilt; "
-                        "'none' for Constraint II alone (default ur3, the thesis's cell)")
+                   help="workcell (name or JSON) whose extruder every part must clear the platform and the parts printed "
+                        "before it with; 'none' for Constraints I and II alone (default ur3, the thesis's cell)")
     p.add_argument("--print", action="store_true", dest="print_parts",
                    help="also slice every part in planar layers along its build direction and plan the tool-paths "
                         "of the whole sequence (layers/, toolpaths.npz, toolpaths.gcode)")
@@ -73,8 +75,10 @@ def run(args: argparse.Namespace) -> int:
     cell = None if args.workcell == "none" else args.workcell
     if cell is not None:
         load_workcell(cell)  # a bad name fails before any work
+    # with --print the parts are cut for the layers they will be printed in (no part under two layers)
+    layer = (args.layer_height or args.voxel) if args.print_parts else Settings.layer_height
     dec = decompose(solid, args.alpha_max, args.root, args.analysis_tolerance,
-                    Settings(max_parts=args.max_parts, workcell=cell))
+                    Settings(max_parts=args.max_parts, workcell=cell, layer_height=layer))
     with atomic_folder(args.out, force=args.force, protect=(args.model,)) as tmp:
         report = write_decomposition(dec, tmp, str(args.model), solid)
         if args.print_parts:

@@ -24,7 +24,7 @@ from curvslice.decompose.fine_tuning import (Settings, coarse_parts, fine_decomp
 from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_frame, to_manifold, to_trimesh
 from curvslice.decompose.preview import plot_parts
 from curvslice.decompose.risky import (FIRST_LAYER_MM, PLATFORM_CONTACT_MM, UNDERSIDE_MM, lowest_plane,
-                                      risky_area, risky_faces, underside_mask)
+                                      platform_layer_mask, risky_faces, underside_mask)
 from curvslice.decompose.sequence import breadth_first_order, extruder_aware_order, plan_sequence
 from curvslice.decompose.shape_analysis import coarse_decomposition
 
@@ -38,7 +38,7 @@ class Part:
     base: Plane  # base plane; build direction = base.normal
     parent: int | None
     section: shapely.MultiPolygon
-    risky_area: float  # mm², Eq. 2.1 beyond the base plane
+    risky_area: float  # mm², Eq. 2.1 beyond the base plane and the platform's first layer
     base_centre: np.ndarray
     risky_area_analysis: float = 0.0  # the same on the analysis copy the search ran on
     risky_underside: float = 0.0  # mm², the part of risky_area on the model's underside (UNDERSIDE_MM)
@@ -57,6 +57,8 @@ class Decomposition:
     workcell: str | None = None  # whose extruder every part clears the platform with (Settings.workcell)
     #: per part in sequence: nozzle positions (of those sampled) where the extruder meets earlier parts
     extruder_blocked: list[tuple[int, int]] = field(default_factory=list)
+    #: layer height the parts were cut for (Settings.layer_height): the platform's first layer
+    layer_height: float = 1.0
 
     def constraint_one_violations(self) -> list[tuple[int, int]]:
         pairs = constraint_one([p.base for p in self.parts], [p.section for p in self.parts])
@@ -102,12 +104,13 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         root = i == seq.root
         sec = cross_section(sol, base, PLATFORM_CONTACT_MM if root else 1e-3)
         centre = base.frame() @ np.r_[np.asarray(sec.centroid.coords[0]) if not sec.is_empty else np.zeros(2), 0, 1]
-        parts.append(Part(i, m, base, pieces[i].parent, sec, risky_area(m, base, s.alpha_max), centre[:3],
-                          part_risk(pieces[i], s.alpha_max)))
+        parts.append(Part(i, m, base, pieces[i].parent, sec, 0.0, centre[:3], part_risk(pieces[i], s.alpha_max)))
     platform = min(float((p.mesh.vertices @ seq.root_direction).min()) for p in parts)
-    for p in parts:
-        under = risky_faces(p.mesh, p.base, s.alpha_max) & underside_mask(p.mesh, seq.root_direction, platform)
-        p.risky_underside = float(p.mesh.area_faces[under].sum())
+    for p in parts:  # faces within the platform's first layer are printed on it, whichever part they are in
+        risky = risky_faces(p.mesh, p.base, s.alpha_max) & ~platform_layer_mask(p.mesh, seq.root_direction, platform,
+                                                                                s.layer_height)
+        p.risky_area = float(p.mesh.area_faces[risky].sum())
+        p.risky_underside = float(p.mesh.area_faces[risky & underside_mask(p.mesh, seq.root_direction, platform)].sum())
     t["replay"] = time.perf_counter()
     parent = {p.index: p.parent for p in parts}
     blocked: dict[int, tuple[int, int]] = {}
@@ -128,7 +131,8 @@ def decompose(mesh: trimesh.Trimesh, alpha_max_deg: float = 45.0, root: int | No
         prev = t[n]
     timings["total"] = t["order"] - t["start"]
     return Decomposition(parts, seq.root_direction, s.alpha_max, len(coarse.areas), coarse.k, timings, len(simple.faces),
-                         float(full.volume()), s.workcell, [blocked[p.index] for p in parts] if blocked else [])
+                         float(full.volume()), s.workcell, [blocked[p.index] for p in parts] if blocked else [],
+                         s.layer_height)
 
 
 def write_decomposition(dec: Decomposition, folder: Path, source: str, model: trimesh.Trimesh) -> dict:
@@ -173,6 +177,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "risky_area_analysis_mm2": [q["risky_area_analysis_mm2"] for q in parts],
         "risky_underside_mm2": [q["risky_underside_mm2"] for q in parts],
         "underside_mm": UNDERSIDE_MM,
+        "platform_layer_mm": dec.layer_height,
         "constraint_one_violations": [list(v) for v in one],
         "constraint_two_violations": two,
         "volume_model_mm3": dec.model_volume,
@@ -182,6 +187,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
     (folder / "parts.json").write_text(json.dumps({"root_direction": dec.root_direction.tolist(),
                                                    "alpha_max_deg": report["alpha_max_deg"],
                                                    "first_layer_mm": FIRST_LAYER_MM, "underside_mm": UNDERSIDE_MM,
+                                                   "platform_layer_mm": dec.layer_height,
                                                    "parts": parts}, indent=1))
     (folder / "report.json").write_text(json.dumps(report, indent=1))
     plot_parts(dec.parts, folder / "parts.png", f"{Path(source).stem}: {len(parts)} parts, sequence 0..{len(parts) - 1}")

@@ -11,12 +11,19 @@
   falls short): a part printed with its direction tilted by θ from the platform's normal must keep
   its lowest point :func:`platform_clearance` (θ) above the platform, or the extruder -- the bodies
   of the workcell, the thesis's UR3 cell by default -- hits the platform while printing it.
+- Accessibility (not in the thesis either; §2.6 limitation 5): printing a part, the extruder --
+  its bodies swept over every nozzle position of the part, turned about the nozzle axis as the
+  robot may turn the platform (Eq. 4.3) -- must find a turn that holds none of the material of the
+  parts that may be printed before it (:func:`turn_hits`). Constraint I stops only the
+  crossing base sections of Fig. 2.6; a part leaning over a part printed before it still meets the
+  heater block or the extruder body above its first layers (the bunny's ears over its head).
 """
 
 from __future__ import annotations
 
 import numpy as np
 import shapely
+import trimesh
 from shapely import affinity
 
 from curvslice.decompose.parts import Plane
@@ -144,15 +151,15 @@ def extruder_hits(cell: Workcell, positions: np.ndarray, direction: np.ndarray, 
         return out
     R = plane_frame(np.asarray(direction, float), np.zeros(3))[:3, :3]
     local = (np.asarray(obstacles)[None, :, :] - np.asarray(positions)[:, None, :]) @ R  # (S, O, 3) in N, untilted
-    reach = max(float(np.linalg.norm(_hull_points(b), axis=1).max()) for b in cell.extruder)
+    hulls = [_hull_points(b) for b in cell.extruder]
+    reach = max(float(np.linalg.norm(h, axis=1).max()) for h in hulls)
     s_idx, o_idx = np.nonzero((local[:, :, 2] > above) & (np.einsum("soi,soi->so", local, local) <= reach * reach))
     pts = local[s_idx, o_idx]
     radius = np.hypot(pts[:, 0], pts[:, 1])
     phi = 2 * np.pi * np.arange(turns) / turns
     c, s = np.cos(phi), np.sin(phi)
     inside = np.zeros((len(pts), turns), bool)
-    for body in cell.extruder:
-        hull = _hull_points(body)  # turns keep a point's height and distance from the axis: a first filter
+    for body, hull in zip(cell.extruder, hulls):  # turns keep a point's height and distance from the axis: a first filter
         near = np.flatnonzero((pts[:, 2] >= hull[:, 2].min()) & (pts[:, 2] <= hull[:, 2].max())
                               & (radius <= np.hypot(hull[:, 0], hull[:, 1]).max()))
         p = pts[near]
@@ -160,5 +167,39 @@ def extruder_hits(cell: Workcell, positions: np.ndarray, direction: np.ndarray, 
         turned = np.stack([p[:, None, 0] * c + p[:, None, 1] * s, -p[:, None, 0] * s + p[:, None, 1] * c,
                            np.broadcast_to(p[:, None, 2], (len(p), turns))], axis=-1)
         inside[near] |= _inside_body(body, turned)
-    np.logical_or.at(out, s_idx, inside)
+    if len(s_idx):  # s_idx is sorted (np.nonzero): OR the pairs of each position by segments
+        starts = np.flatnonzero(np.r_[True, s_idx[1:] != s_idx[:-1]])
+        out[s_idx[starts]] = np.logical_or.reduceat(inside, starts, axis=0)
     return out
+
+
+def material_points(mesh: trimesh.Trimesh, spacing: float = 2.0, seed: int = 0) -> np.ndarray:
+    """Points standing for a part's material as an obstacle of the extruder: its surface sampled
+    about one point per ``spacing``² mm² (every extruder body is wider than ``spacing``; the nozzle
+    cone, narrower, reaches past its tip only :data:`ABOVE_TIP_MM`)."""
+    count = max(1, int(np.ceil(mesh.area / spacing**2)))
+    return trimesh.sample.sample_surface(mesh, count, seed=seed)[0]
+
+
+#: Material this close over the nozzle tip (mm, along the build direction) is the layer being
+#: printed on, not an obstacle (half a layer of a 1 mm nozzle, as :func:`extruder_hits`).
+ABOVE_TIP_MM = 0.5
+
+
+def nozzle_positions(part: trimesh.Trimesh, samples: int = 100, seed: int = 0) -> np.ndarray:
+    """Nozzle positions standing for a part's printing: ``samples`` area-weighted points of its surface
+    (its outer perimeters, where the extruder passes closest to other material)."""
+    return trimesh.sample.sample_surface(part, samples, seed=seed)[0]
+
+
+def turn_hits(cell: Workcell, positions: np.ndarray, direction: np.ndarray, offset: float,
+              obstacles: np.ndarray) -> np.ndarray:
+    """Accessibility of a part printed along ``direction`` from its base plane ``direction·x =
+    offset``: (positions, turns) bool, whether the extruder at each of its nozzle ``positions``
+    (:func:`nozzle_positions`) turned about its axis (:func:`extruder_hits`) holds some of the
+    ``obstacles`` (material printed before it, :func:`material_points`); a position is *blocked*
+    when every turn hits. Material lower than the base plane cannot be over a nozzle position and is
+    skipped first."""
+    d = np.asarray(direction, float)
+    obs = np.asarray(obstacles).reshape(-1, 3)
+    return extruder_hits(cell, positions, d, obs[obs @ d > offset + ABOVE_TIP_MM], above=ABOVE_TIP_MM)

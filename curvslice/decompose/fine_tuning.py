@@ -15,6 +15,16 @@ decomposition can be replayed exactly on the full-resolution model (:func:`repla
   every part's risky area is within tolerance (or ``max_parts``). Candidate
   planes are ranked on area-weighted surface samples (all offsets of a normal at once by
   cumulative sums); the best few are then cut exactly and checked.
+
+Every cut, coarse or fine, must also leave a new part the extruder can print (not in the thesis,
+§2.6 limitation 5): one no thinner than ``min_part_layers`` layers along its direction (a sliver
+gets no layer of its own), clear of the platform at its tilt, and *accessible*: at each sampled
+nozzle position on it some turn of the extruder holds none of the material of the parts that may
+be printed before it -- every part but its own descendants (:func:`turn_hits`). As each new
+part is checked against all the material that is not its descendant, and a later cut or merge only
+splits or joins that material, every part of the result is accessible in any order that prints
+parents first; the cut replacing a blocked one is searched further along the part (higher offsets
+of the Eq. 2.2 ranking, or the next perturbed plane).
 """
 
 from __future__ import annotations
@@ -27,7 +37,8 @@ import shapely
 import trimesh
 from scipy.spatial import cKDTree
 
-from curvslice.decompose.constraints import clearance_table, clears_platform, faces_up, sections_intersect
+from curvslice.decompose.constraints import (clearance_table, clears_platform, faces_up,
+                                              material_points, nozzle_positions, sections_intersect, turn_hits)
 from curvslice.decompose.parts import Plane, centroid, cross_section, plane_frame, split, to_trimesh, union
 from curvslice.decompose.risky import PLATFORM_CONTACT_MM, base_face_mask, lowest_plane, risky_area, risky_faces
 from curvslice.decompose.sequence import Sequence, fibonacci_sphere
@@ -76,14 +87,81 @@ class Settings:
     valid_candidates: int = 4  # valid planes compared by their exact gain
     max_parts: int = 16
     seed: int = 0
-    #: workcell whose extruder each part must clear the platform with (None: Constraint II alone)
+    #: workcell whose extruder each part must clear the platform and the parts printed before it
+    #: with (None: Constraints I and II alone)
     workcell: str | None = "ur3"
+    #: layer height the parts will be printed at (mm; the default voxel of ``curvslice decompose
+    #: --print``), and the fewest layers a part may have along its direction (not stated)
+    layer_height: float = 1.0
+    min_part_layers: int = 2
+    access_samples: int = 100  # nozzle positions sampled per new part (accessibility)
+    access_spacing: float = 2.5  # mm between the obstacle points standing for the other parts' material
 
     def clearance(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The platform-clearance table of :attr:`workcell` (:func:`clearance_table`)."""
         from curvslice.workcell import load_workcell
 
         return None if self.workcell is None else clearance_table(load_workcell(self.workcell))
+
+
+@dataclass
+class Access:
+    """Accessibility of new parts for the extruder of ``settings.workcell`` (:func:`turn_hits`),
+    each solid's mesh and obstacle points made once."""
+
+    settings: Settings
+    _cache: dict[int, tuple[manifold3d.Manifold, trimesh.Trimesh, np.ndarray]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        from curvslice.workcell import load_workcell
+
+        self.cell = None if self.settings.workcell is None else load_workcell(self.settings.workcell)
+
+    def _of(self, solid: manifold3d.Manifold) -> tuple[manifold3d.Manifold, trimesh.Trimesh, np.ndarray]:
+        key = id(solid)
+        if key not in self._cache or self._cache[key][0] is not solid:
+            mesh = to_trimesh(solid)
+            self._cache[key] = (solid, mesh, material_points(mesh, self.settings.access_spacing, self.settings.seed))
+        return self._cache[key]
+
+    def points(self, solids: list[manifold3d.Manifold]) -> np.ndarray:
+        return np.vstack([self._of(q)[2] for q in solids]) if solids else np.zeros((0, 3))
+
+    def _positions(self, mesh: trimesh.Trimesh) -> np.ndarray:
+        return nozzle_positions(mesh, self.settings.access_samples, self.settings.seed)
+
+    def printable(self, mesh: trimesh.Trimesh, plane: Plane, ancestors: list[manifold3d.Manifold],
+                  others: dict[int, Piece]) -> bool:
+        """A new part (``mesh`` printed from ``plane``) is clear of its ``ancestors`` (printed before it in
+        any order) and can take a place among the unrelated ``others``: each of them that blocks it
+        (with the ancestors) must be printable after it, with the parts standing on it, clear of the
+        new part, and the rest must leave it clear."""
+        if self.cell is None:
+            return True
+        at = self._positions(mesh)
+        first = turn_hits(self.cell, at, plane.normal, plane.offset, self.points(ancestors))
+        if first.all(axis=1).any():
+            return False
+        if not others or not (first | turn_hits(self.cell, at, plane.normal, plane.offset,
+                                                self.points([q.solid for q in others.values()]))).all(axis=1).any():
+            return True
+        per = {i: turn_hits(self.cell, at, plane.normal, plane.offset, self.points([q.solid])) for i, q in others.items()}
+        blockers = [i for i, h in per.items() if (first | h).all(axis=1).any()]
+        rest = np.logical_or.reduce([first, *(h for i, h in per.items() if i not in blockers)])
+        if rest.all(axis=1).any():
+            return False  # unrelated parts that block it only together: not resolved by an order
+        if blockers:
+            mine = material_points(mesh, self.settings.access_spacing, self.settings.seed)
+            for r in (others[k] for k in _descendants(others, blockers)):
+                if turn_hits(self.cell, self._positions(self._of(r.solid)[1]), r.base.normal, r.base.offset,
+                             mine).all(axis=1).any():
+                    return False
+        return True
+
+
+def thick_enough(vertices: np.ndarray, plane: Plane, s: Settings) -> bool:
+    """The part (its ``vertices``) rises ``min_part_layers`` layers over its base ``plane``."""
+    return float((np.asarray(vertices) @ plane.normal).max()) - plane.offset >= s.min_part_layers * s.layer_height
 
 
 def _vertices(solid: manifold3d.Manifold) -> np.ndarray:
@@ -125,6 +203,7 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
     root_base = lowest_plane(mesh.vertices, seq.root_direction)
     pieces = {seq.root: Piece(solid, root_base, None, cross_section(solid, root_base, PLATFORM_CONTACT_MM))}
     table = s.clearance()
+    access = Access(s)
     owner = {p: seq.root for p in range(len(coarse.areas))}
     cuts: list[Cut] = []
     for j in seq.order[1:]:
@@ -136,7 +215,7 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
         mine, others = cKDTree(centres[inside]), cKDTree(centres[~inside])
         boundary = mesh.vertices[np.unique(mesh.face_adjacency_edges[
             (labels[mesh.face_adjacency[:, 0]] == j) ^ (labels[mesh.face_adjacency[:, 1]] == j)])]
-        best = None
+        options = []
         ref_area = None
         for plane in _perturbed(seq.planes[j], boundary.mean(axis=0), diag, s, rng):
             if not faces_up(plane.normal, seq.root_direction):
@@ -156,16 +235,21 @@ def coarse_parts(solid: manifold3d.Manifold, coarse: CoarseDecomposition, seq: S
                 continue
             cap = float(km.area_faces[base_face_mask(km, plane)].sum())
             ref_area = cap if ref_area is None else ref_area
-            if cap > (1 + s.max_section_growth) * ref_area:
+            if cap > (1 + s.max_section_growth) * ref_area or not thick_enough(km.vertices, plane, s):
                 continue
             left = union([below, *rest])
             score = part_risk(Piece(left, pieces[holder].base, pieces[holder].parent), s.alpha_max) \
                 + risky_area(km, plane, s.alpha_max)
-            if best is None or score < best[0] - 1e-9:
-                best = (score, plane, kept, left, keep, rest)
+            options.append((score, len(options), plane, kept, km, left, keep, rest))
+        # the least risky plane whose part the extruder can print: the holder's rest and its
+        # ancestors are printed before it, the other parts cut so far are unrelated
+        anc = _ancestors(pieces, holder)
+        others = {i: q for i, q in pieces.items() if i != holder and i not in anc}
+        best = next((o for o in sorted(options, key=lambda o: o[:2])  # the holder's rest: below the plane but `rest`
+                     if access.printable(o[4], o[2], [*o[7], *(pieces[i].solid for i in anc)], others)), None)
         if best is None:
             continue  # the plane does not separate this patch: it stays in its holder
-        _, plane, kept, left, keep, rest = best
+        _, _, plane, kept, _, left, keep, rest = best
         pieces[holder].solid = left
         pieces[j] = Piece(kept, plane, holder, cross_section(kept, plane))
         for p in sub:
@@ -245,12 +329,14 @@ def rank_cuts(piece: Piece, root_direction: np.ndarray, s: Settings) -> list[tup
 
 def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction: np.ndarray, total_volume: float,
                        s: Settings) -> list[Cut]:
-    """Greedy refinement by optimal cutting planes (Eq. 2.2) under Constraints I and II."""
+    """Greedy refinement by optimal cutting planes (Eq. 2.2) under Constraints I and II, the platform
+    clearance, the least part thickness and accessibility (module docstring)."""
     known: dict[int, tuple[manifold3d.Manifold, float]] = {}
     # parts with no valid plane stay so while their solid is unchanged: a new part only adds a base
     # section for Constraint I to keep apart from (the bunny's root, unimprovable, was re-searched every round)
     stuck: dict[int, manifold3d.Manifold] = {}
     table = s.clearance()
+    access = Access(s)
     platform = next(q for q in pieces.values() if q.parent is None).base.offset
     while len(pieces) < s.max_parts:
         for i, p in pieces.items():
@@ -264,7 +350,7 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                 continue
             piece = pieces[g]
             base_area = 0.99 * _base_area(piece.solid, piece.base, piece.parent is None)
-            valid = 0
+            valid = []  # the extruder test, the costliest, only on the best of each batch of valid planes
             for _, plane in rank_cuts(piece, root_direction, s)[: s.exact_candidates]:
                 below, above = split(piece.solid, plane)
                 if len(below.decompose()) != 1 or not above:
@@ -272,37 +358,82 @@ def fine_decomposition(pieces: dict[int, Piece], cuts: list[Cut], root_direction
                 top = union(above)
                 if top.volume() < s.min_part_volume_fraction * total_volume or _base_area(below, piece.base, piece.parent is None) < base_area:
                     continue
-                if not clears_platform(_vertices(top), plane.normal, root_direction, platform, table):
+                top_v = _vertices(top)
+                if not (clears_platform(top_v, plane.normal, root_direction, platform, table)
+                        and thick_enough(top_v, plane, s) and thick_enough(_vertices(below), piece.base, s)):
                     continue
+                top_mesh = to_trimesh(top)
                 gain = risk[g] - part_risk(Piece(below, piece.base, piece.parent), s.alpha_max) \
-                    - risky_area(to_trimesh(top), plane, s.alpha_max)
+                    - risky_area(top_mesh, plane, s.alpha_max)
                 if gain <= 1e-6:
                     continue
                 section = cross_section(top, plane)
                 if any(sections_intersect(plane, section, q.base, q.section) for i, q in pieces.items() if i != g) \
                         or sections_intersect(plane, section, piece.base, piece.section):
                     continue
-                if best is None or gain > best[0]:
-                    best = (gain, g, plane, below, top, above, section)
-                valid += 1
-                if valid == s.valid_candidates:
-                    break
+                valid.append((gain, g, plane, below, top, above, section, top_mesh))
+                if len(valid) == s.valid_candidates:
+                    best = _best_printable(valid, pieces, access)
+                    if best is not None:
+                        break
+                    valid = []
+            if best is None and valid:
+                best = _best_printable(valid, pieces, access)
             if best is not None:
                 break  # the riskiest part that can be improved is refined first
             stuck[g] = piece.solid
         if best is None:
             break
-        _, g, plane, below, top, above, section = best
+        _, g, plane, below, top, above, section, _ = best
         new = max(pieces) + 1
-        for q in pieces.values():  # children standing on the cut-off top now stand on the new part
-            if q.parent == g and q.section.area > 0:
-                c = q.base.frame() @ np.r_[np.asarray(q.section.representative_point().coords[0]), 0.0, 1.0]
-                if plane.normal @ c[:3] > plane.offset:
-                    q.parent = new
+        for i in _moved_children(pieces, g, plane):  # children standing on the cut-off top now stand on the new part
+            pieces[i].parent = new
         pieces[g].solid = below
         pieces[new] = Piece(top, plane, g, section)
         cuts.append(Cut(g, new, plane, np.array([centroid(c) for c in above]), np.zeros((0, 3))))
     return cuts
+
+
+def _best_printable(valid: list[tuple], pieces: dict[int, Piece], access: Access) -> tuple | None:
+    """The valid cut of largest gain whose new part the extruder can print: the holder's ancestors are
+    printed before it (the holder's rest lies under the plane), the parts standing on it after it,
+    the others in an order the extruder allows (:meth:`Access.printable`)."""
+    for c in sorted(valid, key=lambda c: -c[0]):
+        _, g, plane, *_, top_mesh = c
+        anc = _ancestors(pieces, g)
+        after = _descendants(pieces, _moved_children(pieces, g, plane))
+        if access.printable(top_mesh, plane, [pieces[i].solid for i in anc],
+                            {i: q for i, q in pieces.items() if i != g and i not in anc | after}):
+            return c
+    return None
+
+
+def _moved_children(pieces: dict[int, Piece], g: int, plane: Plane) -> list[int]:
+    """The children of ``g`` standing on the part its cut by ``plane`` takes off (their section above it)."""
+    out = []
+    for i, q in pieces.items():
+        if q.parent == g and q.section.area > 0:
+            c = q.base.frame() @ np.r_[np.asarray(q.section.representative_point().coords[0]), 0.0, 1.0]
+            if plane.normal @ c[:3] > plane.offset:
+                out.append(i)
+    return out
+
+
+def _ancestors(pieces: dict[int, Piece], i: int) -> set[int]:
+    out = set()
+    while pieces[i].parent is not None:
+        i = pieces[i].parent
+        out.add(i)
+    return out
+
+
+def _descendants(pieces: dict[int, Piece], roots: list[int]) -> set[int]:
+    out, stack = set(), list(roots)
+    while stack:
+        i = stack.pop()
+        out.add(i)
+        stack.extend(k for k, q in pieces.items() if q.parent == i)
+    return out
 
 
 def replay(solid: manifold3d.Manifold, root: int, cuts: list[Cut]) -> dict[int, manifold3d.Manifold]:

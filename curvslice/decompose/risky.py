@@ -8,6 +8,13 @@ the root and the other parts alike (a scanned bottom is rarely flat to the micro
 cut meets the surface at any angle: the sliver of surface a cut leaves just above its plane is
 part of the child's first layer, not an overhang).
 
+Every part's faces lying within one layer over the platform (their highest vertex at most a layer
+height above it) are supported by the platform, not only the root's: they are deposited in the first
+layer, onto the platform (§2.4.3 excludes the base plane, which for the root *is* the platform; a
+facet on it or just above it within that layer is printed on it). The decomposition reports each
+part's risky area with them excluded (:func:`platform_layer_mask`, ``platform_layer_mm`` in
+parts.json); a ceiling higher over the platform still hangs (Eq. 2.1; the thesis has no bridging rule).
+
 ``α_max`` default: the thesis borrows the self-support angle from its ref. [26] without stating a
 value; 45° is the usual FDM rule (a wall may lean up to 45° beyond vertical), so
 :data:`ALPHA_MAX_DEG` = 45.
@@ -70,6 +77,12 @@ def underside_mask(mesh: trimesh.Trimesh, up: np.ndarray, platform: float, heigh
     """Faces of ``mesh`` whose highest vertex is within ``height`` of the platform (the plane
     ``x·up = platform``): the model's underside."""
     return (mesh.vertices @ np.asarray(up, float) - platform)[mesh.faces].max(axis=1) <= height
+
+
+def platform_layer_mask(mesh: trimesh.Trimesh, up: np.ndarray, platform: float, layer: float) -> np.ndarray:
+    """Faces lying within one ``layer`` over the platform (the plane ``x·up = platform``): printed in
+    the first layer, onto the platform."""
+    return underside_mask(mesh, up, platform, layer)
 
 
 def lowest_plane(vertices: np.ndarray, direction: np.ndarray) -> Plane:

@@ -3,7 +3,8 @@
 - the parts' union equals the model (``solid.stl``) within 0.1 % of its volume, and the parts do
   not overlap (their volumes add up to the union's);
 - each part's risky area (Eq. 2.1, faces within the first layer above the base plane excluded,
-  ``first_layer_mm`` of parts.json) recomputed from its mesh equals the reported
+  ``first_layer_mm`` of parts.json, and faces within one layer over the platform, where the first
+  layer is deposited on it, ``platform_layer_mm``) recomputed from its mesh equals the reported
   one, so does its share on the model's underside (faces reaching no higher than ``underside_mm``
   over the lowest point of all parts), and whether every part is support-free;
 - Constraint I: the base faces (faces of a part on its base plane) of two parts never cross on a
@@ -100,11 +101,13 @@ def checks(outdir: Path) -> list[Check] | None:
         results.append(Check(STAGE, "union equals model", False, "missing", "solid.stl is not in the folder"))
     risky, under, mismatch = [], [], []
     underside = spec.get("underside_mm")
+    platform_layer = float(spec.get("platform_layer_mm", 0.0))
     low = min(float((m.vertices @ root_dir).min()) for m in meshes)
     for k, (p, m) in enumerate(zip(parts, meshes)):
         n, c = np.asarray(p["base_plane"]["normal"], float), float(p["base_plane"]["offset_mm"])
         first = np.all(np.abs((m.vertices @ n - c)[m.faces]) <= first_layer, axis=1)
-        bad = (m.face_normals @ n + np.sin(alpha) < 0) & ~first
+        on_platform = (m.vertices @ root_dir - low)[m.faces].max(axis=1) <= platform_layer
+        bad = (m.face_normals @ n + np.sin(alpha) < 0) & ~first & ~on_platform
         area = float(m.area_faces[bad].sum())
         risky.append(area)
         wrong = abs(area - p["risky_area_mm2"]) > 1e-3 * max(1.0, area)
@@ -118,7 +121,8 @@ def checks(outdir: Path) -> list[Check] | None:
     results.append(Check(STAGE, "risky area per part", not mismatch, ", ".join(f"{a:.1f}" for a in risky) + " mm²",
                          f"reported differs for parts {mismatch}" if mismatch else "recomputed = reported"))
     worst = int(np.argmax(risky))
-    split = (f"; on the underside (≤ {underside:g} mm over the platform): "
+    split = (f"; faces within {platform_layer:g} mm of the platform stand on it; on the underside "
+             f"(≤ {underside:g} mm over the platform): "
              + ", ".join(f"{u:.1f}" for u in under) + " mm², elsewhere max "
              + f"{max(a - u for a, u in zip(risky, under)):.1f} mm²") if under else ""
     results.append(Check(STAGE, "every part support-free", max(risky) <= SUPPORT_FREE_MM2,
