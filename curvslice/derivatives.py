@@ -78,9 +78,23 @@ def total_squared_jerk(jerk: np.ndarray, weights: np.ndarray | None = None) -> f
 
 def motion_stats(q: np.ndarray, t: np.ndarray, segment: np.ndarray, weights: np.ndarray | None = None) -> dict:
     """Evidence of Eq. 4.2 on a trajectory: max |q̈| and |q⃛| per joint, J, print time."""
+    return group_stats(q, t, segment, np.zeros(len(q), int), weights).get(0, _stats(np.zeros((0, 6)), np.zeros((0, 6)), np.zeros(0), None))
+
+
+def group_stats(q: np.ndarray, t: np.ndarray, segment: np.ndarray, group: np.ndarray,
+                weights: np.ndarray | None = None) -> dict[int, dict]:
+    """:func:`motion_stats` of the rows of each value of ``group`` (n,) (e.g. the layers), from one
+    derivative pass: no segment may span two groups (the stencils then stay inside a group)."""
     if len(q) == 0:
-        return {"max_acceleration": [0.0] * 6, "max_jerk": [0.0] * 6, "total_squared_jerk": 0.0, "time_s": 0.0}
+        return {}
     _, acc, jerk = derivatives(q, t, segment)
+    values, inv = np.unique(group, return_inverse=True)
+    return {int(v): _stats(acc[inv == i], jerk[inv == i], t[inv == i], weights) for i, v in enumerate(values)}
+
+
+def _stats(acc: np.ndarray, jerk: np.ndarray, t: np.ndarray, weights: np.ndarray | None) -> dict:
+    if len(t) == 0:
+        return {"max_acceleration": [0.0] * 6, "max_jerk": [0.0] * 6, "total_squared_jerk": 0.0, "time_s": 0.0}
     return {
         "max_acceleration": [round(float(v), 4) for v in np.abs(acc).max(axis=0)],
         "max_jerk": [round(float(v), 4) for v in np.abs(jerk).max(axis=0)],
