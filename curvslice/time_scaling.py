@@ -107,19 +107,29 @@ def rest_to_rest(qa: np.ndarray, qb: np.ndarray, limits: Limits) -> float:
 def state_to_state(qa: np.ndarray, va: np.ndarray, aa: np.ndarray, qb: np.ndarray, vb: np.ndarray, ab: np.ndarray,
                    limits: Limits) -> float:
     """Duration (s) of the time-optimal jerk-limited joint move (Ruckig, all joints synchronized) from
-    the state (qa, q̇a, q̈a) to (qb, q̇b, q̈b), within ξ, a_max and j_max; a joint whose end speed is
-    over ξ (the polynomial of Eq. 4.7 at a segment's end row, while ξ bounds its steps) may move that
-    fast."""
-    from ruckig import InputParameter, Result, Ruckig, Trajectory
+    the state (qa, q̇a, q̈a) to (qb, q̇b, q̈b), within ξ, a_max and j_max; a joint whose end state
+    reaches a speed over ξ (|q̇| + q̈²/2j_max: the polynomial of Eq. 4.7 at a segment's end row, while
+    ξ bounds its steps) may move that fast."""
+    from ruckig import InputParameter, Result, Ruckig, RuckigError, Trajectory
 
     inp = InputParameter(6)
     inp.current_position, inp.current_velocity, inp.current_acceleration = (list(map(float, v)) for v in (qa, va, aa))
     inp.target_position, inp.target_velocity, inp.target_acceleration = (list(map(float, v)) for v in (qb, vb, ab))
-    inp.max_velocity = list(map(float, np.maximum(limits.speed, np.maximum(np.abs(va), np.abs(vb)) * (1 + 1e-9))))
     inp.max_acceleration = list(map(float, np.maximum(limits.acceleration, np.maximum(np.abs(aa), np.abs(ab)) * (1 + 1e-9))))
     inp.max_jerk = list(map(float, limits.jerk))
+    # the speed an end state reaches (or came from) while its acceleration ramps to 0 at j_max
+    reach = np.maximum(np.abs(va) + aa**2 / (2 * limits.jerk), np.abs(vb) + ab**2 / (2 * limits.jerk))
+    speed = np.maximum(limits.speed, reach * (1 + 1e-6))
     traj = Trajectory(6)
-    result = Ruckig(6).calculate(inp, traj)
+    for _ in range(20):  # Ruckig's own reach test is a little stricter than the estimate: widen where it needs
+        inp.max_velocity = list(map(float, speed))
+        try:
+            result = Ruckig(6).calculate(inp, traj)
+            break
+        except RuckigError:
+            speed = np.where(reach * (1 + 1e-6) > limits.speed, speed * 1.02, speed)
+    else:
+        raise RuntimeError("ruckig could not plan a move between segments: an end state beyond its limits")
     if result not in (Result.Working, Result.Finished):
         raise RuntimeError(f"ruckig could not plan a move between segments: {result}")
     return float(traj.duration)
