@@ -92,6 +92,19 @@ def group_stats(q: np.ndarray, t: np.ndarray, segment: np.ndarray, group: np.nda
     return {int(v): _stats(acc[inv == i], jerk[inv == i], t[inv == i], weights) for i, v in enumerate(values)}
 
 
+def combined_stats(parts, t: np.ndarray) -> dict:
+    """:func:`motion_stats` of a whole trajectory (times ``t``) from those of its groups (:func:`group_stats`)."""
+    parts = list(parts)
+    if not parts or len(t) == 0:
+        return _stats(np.zeros((0, 6)), np.zeros((0, 6)), np.zeros(0), None)
+    return {
+        "max_acceleration": [max(p["max_acceleration"][j] for p in parts) for j in range(6)],
+        "max_jerk": [max(p["max_jerk"][j] for p in parts) for j in range(6)],
+        "total_squared_jerk": float(f"{sum(p['total_squared_jerk'] for p in parts):.6g}"),
+        "time_s": round(float(t[-1] - t[0]), 3),
+    }
+
+
 def _stats(acc: np.ndarray, jerk: np.ndarray, t: np.ndarray, weights: np.ndarray | None) -> dict:
     if len(t) == 0:
         return {"max_acceleration": [0.0] * 6, "max_jerk": [0.0] * 6, "total_squared_jerk": 0.0, "time_s": 0.0}
