@@ -10,7 +10,7 @@ import pytest
 
 from curvslice.collision import CollisionScene
 from curvslice.exporters.joints_csv import write_robot_outputs
-from curvslice.derivatives import derivatives, uniform_jerk
+from curvslice.derivatives import combined_stats, derivatives, group_stats, motion_stats, uniform_jerk
 from curvslice.jerk import JerkSettings, dense_projection, global_filter, local_filter, redundancy, trajectory_stage
 from curvslice.time_scaling import Limits, rest_to_rest, state_to_state, time_scale
 from curvslice.kinematics import fk_reference, joint_placements, load_robot
@@ -57,6 +57,20 @@ def test_verifier_and_planner_derivatives_agree_on_short_segments():
     assert np.allclose(acc, acc2, rtol=1e-7, atol=1e-7 * np.abs(acc).max())
     assert np.allclose(jerk, jerk2, rtol=1e-7, atol=1e-7 * np.abs(jerk).max())
     assert (jerk[:6] == 0).all()  # segments of < 4 rows have no third derivative
+
+
+def test_stats_per_layer_from_one_pass_equal_each_layers_own():
+    rng = np.random.default_rng(5)
+    seg = np.repeat(np.arange(7), [9, 3, 12, 1, 8, 6, 11])
+    layer = np.repeat([4, 4, 5, 5, 5, 9, 9], [9, 3, 12, 1, 8, 6, 11])  # segments never span layers
+    t = np.cumsum(rng.uniform(0.02, 0.3, len(seg)))
+    q = rng.normal(size=(len(seg), 6))
+    got = group_stats(q, t, seg, layer)
+    for v in (4, 5, 9):
+        assert got[v] == motion_stats(q[layer == v], t[layer == v], seg[layer == v])
+    whole, joined = motion_stats(q, t, seg), combined_stats(got.values(), t)
+    assert joined["max_jerk"] == whole["max_jerk"] and joined["max_acceleration"] == whole["max_acceleration"]
+    assert joined["total_squared_jerk"] == pytest.approx(whole["total_squared_jerk"], rel=1e-5)
 
 
 @pytest.fixture(scope="module")
