@@ -17,9 +17,10 @@ not the jerk. This module improves it:
 3. **Global filter** (Eq. 4.12 with the window = the whole segment): projected, damped Gauss-Newton
    on J = Σ‖q⃛_i‖²_W (Eq. 4.2) plus quadratic penalties on the joint limits, on ξ (‖Δq‖∞/Δt,
    Eq. 4.4) and on a_max; all segments of a print form one sparse banded system (stencils never
-   cross a segment); a step is kept per segment only where it lowers that segment's cost. Then fcl
-   checks every moved row (§4.3.3); a colliding one goes back towards its last collision-free pose
-   and its neighbours are re-filtered.
+   cross a segment); a step is kept per segment only where it lowers that segment's cost, and a
+   segment that stopped gaining leaves the system. A few steps on every row, then only on the
+   stretches still over a limit. Then fcl checks every moved row (§4.3.3); a colliding one is
+   projected (Eq. 4.13) or goes back to its last collision-free pose and its neighbours are re-filtered.
 4. **Algorithm 6** (§4.3.2): at the free row of largest ‖q⃛‖_W above j_max, the local problem
    Eq. 4.12 over θ_{c-d..c+d} by SQP (scipy's SLSQP) with the joint limits, ξ and a_max as hard
    constraints; d = 5, +5 up to d_max = 20 while it fails; a window that still fails is locked, a
