@@ -100,31 +100,61 @@ def time_scale(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits
 def rest_to_rest(qa: np.ndarray, qb: np.ndarray, limits: Limits) -> float:
     """Duration (s) of the time-optimal jerk-limited joint move from rest at qa to rest at qb
     (Ruckig, all joints synchronized), within ξ, a_max and j_max."""
-    from ruckig import InputParameter, Result, Ruckig, Trajectory
+    zero = np.zeros(len(qa))
+    return state_to_state(qa, zero, zero, qb, zero, zero, limits)
+
+
+def state_to_state(qa: np.ndarray, va: np.ndarray, aa: np.ndarray, qb: np.ndarray, vb: np.ndarray, ab: np.ndarray,
+                   limits: Limits) -> float:
+    """Duration (s) of the time-optimal jerk-limited joint move (Ruckig, all joints synchronized) from
+    the state (qa, q̇a, q̈a) to (qb, q̇b, q̈b), within ξ, a_max and j_max; a joint whose end state
+    reaches a speed over ξ (|q̇| + q̈²/2j_max: the polynomial of Eq. 4.7 at a segment's end row, while
+    ξ bounds its steps) may move that fast."""
+    from ruckig import InputParameter, Result, Ruckig, RuckigError, Trajectory
 
     inp = InputParameter(6)
-    inp.current_position = list(map(float, qa))
-    inp.target_position = list(map(float, qb))
-    inp.max_velocity = [float(limits.speed)] * 6
-    inp.max_acceleration = list(map(float, limits.acceleration))
+    inp.current_position, inp.current_velocity, inp.current_acceleration = (list(map(float, v)) for v in (qa, va, aa))
+    inp.target_position, inp.target_velocity, inp.target_acceleration = (list(map(float, v)) for v in (qb, vb, ab))
+    inp.max_acceleration = list(map(float, np.maximum(limits.acceleration, np.maximum(np.abs(aa), np.abs(ab)) * (1 + 1e-9))))
     inp.max_jerk = list(map(float, limits.jerk))
+    # the speed an end state reaches (or came from) while its acceleration ramps to 0 at j_max
+    reach = np.maximum(np.abs(va) + aa**2 / (2 * limits.jerk), np.abs(vb) + ab**2 / (2 * limits.jerk))
+    speed = np.maximum(limits.speed, reach * (1 + 1e-6))
     traj = Trajectory(6)
-    result = Ruckig(6).calculate(inp, traj)
+    for _ in range(20):  # Ruckig's own reach test is a little stricter than the estimate: widen where it needs
+        inp.max_velocity = list(map(float, speed))
+        try:
+            result = Ruckig(6).calculate(inp, traj)
+            break
+        except RuckigError:
+            speed = np.where(reach * (1 + 1e-6) > limits.speed, speed * 1.02, speed)
+    else:
+        raise RuntimeError("ruckig could not plan a move between segments: an end state beyond its limits")
     if result not in (Result.Working, Result.Finished):
-        raise RuntimeError(f"ruckig could not plan a rest-to-rest move: {result}")
+        raise RuntimeError(f"ruckig could not plan a move between segments: {result}")
     return float(traj.duration)
 
 
+def end_states(q: np.ndarray, t: np.ndarray, segment: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Joint velocity and acceleration (n, 6) at every row by Eq. 4.7-4.10 within its segment: at a
+    segment's first and last row, the state a move between segments starts from or must reach."""
+    vel, acc, _ = derivatives(q, t, segment)
+    return vel, acc
+
+
 def retime_moves(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits, min_step: float) -> tuple[np.ndarray, float]:
-    """Times where every move between segments takes its Ruckig rest-to-rest duration (at least
-    ``min_step``) and steps inside segments are kept. Returns the times and the moves' total (s)."""
+    """Times where every move between segments takes Ruckig's time-optimal duration from the state
+    the segment ends in to the state the next one starts in (Eq. 4.7-4.10 at those rows: the segments
+    do not end at rest), at least ``min_step``; steps inside segments are kept. Returns the times and
+    the moves' total (s)."""
     n = len(t)
     if n < 2:
         return np.asarray(t, float).copy(), 0.0
     dt = np.diff(t)
     moves = np.flatnonzero(segment[1:] != segment[:-1])
+    vel, acc = end_states(q, t, segment) if len(moves) else (None, None)
     total = 0.0
     for i in moves:
-        dt[i] = max(rest_to_rest(q[i], q[i + 1], limits), min_step)
+        dt[i] = max(state_to_state(q[i], vel[i], acc[i], q[i + 1], vel[i + 1], acc[i + 1], limits), min_step)
         total += dt[i]
     return t[0] + np.r_[0.0, np.cumsum(dt)], total

@@ -10,9 +10,9 @@ import pytest
 
 from curvslice.collision import CollisionScene
 from curvslice.exporters.joints_csv import write_robot_outputs
-from curvslice.derivatives import derivatives, uniform_jerk
+from curvslice.derivatives import combined_stats, derivatives, group_stats, motion_stats, uniform_jerk
 from curvslice.jerk import JerkSettings, dense_projection, global_filter, local_filter, redundancy, trajectory_stage
-from curvslice.time_scaling import Limits, rest_to_rest, time_scale
+from curvslice.time_scaling import Limits, rest_to_rest, state_to_state, time_scale
 from curvslice.kinematics import fk_reference, joint_placements, load_robot
 from curvslice.motion import plan_motion, plan_print, step_times
 from curvslice.verify import robot as verify_robot
@@ -57,6 +57,20 @@ def test_verifier_and_planner_derivatives_agree_on_short_segments():
     assert np.allclose(acc, acc2, rtol=1e-7, atol=1e-7 * np.abs(acc).max())
     assert np.allclose(jerk, jerk2, rtol=1e-7, atol=1e-7 * np.abs(jerk).max())
     assert (jerk[:6] == 0).all()  # segments of < 4 rows have no third derivative
+
+
+def test_stats_per_layer_from_one_pass_equal_each_layers_own():
+    rng = np.random.default_rng(5)
+    seg = np.repeat(np.arange(7), [9, 3, 12, 1, 8, 6, 11])
+    layer = np.repeat([4, 4, 5, 5, 5, 9, 9], [9, 3, 12, 1, 8, 6, 11])  # segments never span layers
+    t = np.cumsum(rng.uniform(0.02, 0.3, len(seg)))
+    q = rng.normal(size=(len(seg), 6))
+    got = group_stats(q, t, seg, layer)
+    for v in (4, 5, 9):
+        assert got[v] == motion_stats(q[layer == v], t[layer == v], seg[layer == v])
+    whole, joined = motion_stats(q, t, seg), combined_stats(got.values(), t)
+    assert joined["max_jerk"] == whole["max_jerk"] and joined["max_acceleration"] == whole["max_acceleration"]
+    assert joined["total_squared_jerk"] == pytest.approx(whole["total_squared_jerk"], rel=1e-5)
 
 
 @pytest.fixture(scope="module")
@@ -133,6 +147,15 @@ def test_rest_to_rest_move_is_time_optimal():
     # one joint moves 3 rad: reaches ξ and a_max, so T = D/v + v/a + a/j (jerk-limited S-curve)
     duration = rest_to_rest(np.zeros(6), np.r_[3.0, 0.1, 0, 0, -0.2, 0], limits)
     assert duration == pytest.approx(3.0 + 1.0 / 3.0 + 3.0 / 15.0, rel=1e-9)
+
+
+def test_state_to_state_move_from_rest_is_the_rest_to_rest_one_and_a_moving_start_changes_it():
+    limits = Limits(np.full(6, -7.0), np.full(6, 7.0), 1.0, np.full(6, 3.0), np.full(6, 15.0))
+    qa, qb, zero = np.zeros(6), np.r_[1.0, 0.3, 0, 0, -0.2, 0], np.zeros(6)
+    assert state_to_state(qa, zero, zero, qb, zero, zero, limits) == rest_to_rest(qa, qb, limits)
+    toward = state_to_state(qa, np.r_[0.8, 0, 0, 0, 0, 0], zero, qb, zero, zero, limits)
+    away = state_to_state(qa, np.r_[-0.8, 0, 0, 0, 0, 0], zero, qb, zero, zero, limits)
+    assert toward < rest_to_rest(qa, qb, limits) < away  # already moving toward qb helps, away costs a turn-back
 
 
 def test_verify_fails_the_graph_path_and_passes_the_jerk_one(dome, tmp_path):
@@ -219,8 +242,20 @@ def test_a_jump_between_pieces_becomes_a_ruckig_move(dome):
     assert out.segment[rows] != out.segment[rows - 1] and len(np.unique(out.segment)) == 2
     assert not out.extruding[rows]
     limits = Limits.of(robot, cell)
-    want = max(rest_to_rest(out.q[rows - 1], out.q[rows], limits), cell.min_step_time)
-    assert out.t[rows] - out.t[rows - 1] == pytest.approx(want, rel=1e-12)
+    # the move starts from the state the first piece ends in and reaches the one the second starts in
+    # (Eq. 4.7-4.10 by the verifier's own solve at those rows): neither is at rest
+    vel, acc, _ = _local_derivatives(out.q, out.t, out.segment, orders=(1, 2, 3))
+    assert np.abs(vel[rows - 1]).max() > 1e-3 and np.abs(vel[rows]).max() > 1e-3
+    want = max(state_to_state(out.q[rows - 1], vel[rows - 1], acc[rows - 1], out.q[rows], vel[rows], acc[rows], limits),
+               cell.min_step_time)
+    assert out.t[rows] - out.t[rows - 1] == pytest.approx(want, rel=1e-6)
+    assert verify_robot._move_check(out.q, out.t, out.segment, cell, robot).passed
+    short = out.t - np.where(np.arange(n) >= rows, 0.1 * want, 0.0)  # the move 10 % too short: the verifier fails it
+    assert not verify_robot._move_check(out.q, short, out.segment, cell, robot).passed
+    # ... unless it joins two blocks of layers (16 layers a block: rows -1 and 0 on layers 15 and 16), counted apart
+    layer = np.clip(np.arange(n) - (rows - 16), 0, None)
+    check = verify_robot._move_check(out.q, short, out.segment, cell, robot, layer)
+    assert check.passed and "1 of the 1 moves between blocks of layers too short" in check.detail
     # "before" is the graph's own trajectory (its one segment), as --trajectory graph reports it
     assert report["before"]["total_squared_jerk"] == trajectory_stage(robot, cell, tp, graph, "graph")[1]["layers"][0]["before"]["total_squared_jerk"]
     acc, jerk = _local_derivatives(out.q, out.t, out.segment)

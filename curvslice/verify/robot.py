@@ -99,6 +99,7 @@ def checks(outdir: Path) -> list[Check] | None:
                          f"{over} rows over; max {', '.join(f'{v:.3g}' for v in top)} {unit}",
                          f"Eq. 4.7-4.10 at every row inside its segment vs the workcell's "
                          f"{', '.join(f'{v:g}' for v in bound)} {unit}"))
+    out.append(_move_check(q, t, seg, cell, robot, rows["layer"]))
     max_step = float(np.abs(np.diff(q, axis=0))[inside].max()) if inside.any() else 0.0
     out.append(Check(STAGE, "max joint step in a segment", True, f"{max_step:.4f} rad",
                      f"{int(seg.max()) + 1 if n else 0} motion segments"))
@@ -108,31 +109,67 @@ def checks(outdir: Path) -> list[Check] | None:
     return out
 
 
-def _local_derivatives(q: np.ndarray, t: np.ndarray, seg: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """q̈ and q⃛ (n, 6) at every row from the degree-4 polynomial through the 5 nearest rows of its
-    segment (centred where it can be; all of a shorter segment's rows), Eq. 4.7-4.10: the
-    polynomial's coefficients are solved for directly (independent of the planner's operators)."""
+def _move_check(q: np.ndarray, t: np.ndarray, seg: np.ndarray, cell, robot, layer: np.ndarray | None = None) -> Check:
+    """Every move between segments lasts at least Ruckig's time-optimal jerk-limited duration from the
+    state the segment ends in to the state the next starts in (q, q̇, q̈ by Eq. 4.7-4.10 at those rows,
+    solved here): the segments need not end at rest, the move must still be one the arm can make.
+
+    With ``layer`` (each row's layer), the moves between the robot stage's blocks of layers
+    (:data:`~curvslice.collision.PART_BLOCK`) are counted apart and do not fail the check: the blocks
+    are joined rest-to-rest until :func:`curvslice.robot_stage.plan_robot` re-times its joined motion
+    (:func:`curvslice.jerk.retime_joins`)."""
+    from curvslice.collision import PART_BLOCK
+    from curvslice.time_scaling import Limits, state_to_state
+
+    moves = np.flatnonzero(seg[1:] != seg[:-1])
+    if not len(moves):
+        return Check(STAGE, "moves between segments within the limits", True, "no move")
+    vel, acc, _ = _local_derivatives(q, t, seg, orders=(1, 2, 3))
+    limits = Limits.of(robot, cell)
+    need = np.array([max(state_to_state(q[i], vel[i], acc[i], q[i + 1], vel[i + 1], acc[i + 1], limits), cell.min_step_time)
+                     for i in moves])
+    took = t[moves + 1] - t[moves]
+    short = took < need * (1 - 1e-6) - 1e-9
+    joins = np.zeros(len(moves), bool)
+    if layer is not None:
+        block = np.searchsorted(np.unique(layer), layer) // PART_BLOCK
+        joins = block[moves] != block[moves + 1]
+    detail = ("Δt of each move vs Ruckig's state-to-state duration (ξ, a_max, j_max) from the end state of its "
+              "segment to the start state of the next (Eq. 4.7-4.10)")
+    if joins.any():
+        detail += f"; {int((short & joins).sum())} of the {int(joins.sum())} moves between blocks of layers too short (not failed)"
+    return Check(STAGE, "moves between segments within the limits", not (short & ~joins).any(),
+                 f"{int((short & ~joins).sum())} of {int((~joins).sum())} moves too short; shortest margin "
+                 f"{float((took - need)[~joins].min()) if (~joins).any() else 0.0:.3g} s", detail)
+
+
+def _local_derivatives(q: np.ndarray, t: np.ndarray, seg: np.ndarray, orders: tuple[int, ...] = (2, 3)
+                       ) -> tuple[np.ndarray, ...]:
+    """The ``orders``-th derivatives (n, 6) (default q̈ and q⃛) at every row from the degree-4
+    polynomial through the 5 nearest rows of its segment (centred where it can be; all of a shorter
+    segment's rows), Eq. 4.7-4.10: the polynomial's coefficients are solved for directly (independent
+    of the planner's operators)."""
     n = len(q)
-    acc, jerk = np.zeros((n, 6)), np.zeros((n, 6))
+    out = {r: np.zeros((n, 6)) for r in (1, 2, 3)}
     if n == 0:
-        return acc, jerk
+        return tuple(out[r] for r in orders)
     change = np.flatnonzero(seg[1:] != seg[:-1]) + 1
     starts, ends = np.r_[0, change], np.r_[change, n]
     first = np.repeat(starts, ends - starts)
     length = np.repeat(ends - starts, ends - starts)
     for k in range(2, 6):
         rows = np.flatnonzero(np.minimum(length, 5) == k)
-        if len(rows) == 0 or k < 3:
+        if len(rows) == 0 or k <= min(orders):
             continue
         lo = np.clip(rows - 2, first[rows], first[rows] + length[rows] - k)
         idx = lo[:, None] + np.arange(k)
         h = (t[idx[:, -1]] - t[idx[:, 0]]) / (k - 1)
         tau = (t[idx] - t[rows, None]) / h[:, None]
         coef = np.linalg.solve(tau[..., None] ** np.arange(k), q[idx])  # (rows, k, 6)
-        acc[rows] = 2 * coef[:, 2] / h[:, None] ** 2
-        if k >= 4:
-            jerk[rows] = 6 * coef[:, 3] / h[:, None] ** 3
-    return acc, jerk
+        for r, factor in ((1, 1), (2, 2), (3, 6)):
+            if k > r:
+                out[r][rows] = factor * coef[:, r] / h[:, None] ** r
+    return tuple(out[r] for r in orders)
 
 
 def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> Check:
