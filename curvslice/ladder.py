@@ -23,7 +23,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from curvslice.kinematics import Robot, ik, rigid_inverse
-from curvslice.workcell import Workcell, deposition_frames, flange_poses
+from curvslice.workcell import Workcell, deposition_frames, flange_poses, rotation_samples
 
 TWO_PI = 2 * np.pi
 
@@ -313,6 +313,46 @@ def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndar
     return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
 
 
+class RungMemo:
+    """IK nodes of the rungs :func:`ladder` was asked for before, per waypoint and tool axis, at the
+    finest p asked (the θ samples of p are every (p'/p)-th of p' ≥ p when p divides p', Eq. 4.3): a
+    layer's searches ask the same rungs again (the finer ladder of a break, a stretch searched again
+    with wider ends, the layer planned again after an axis deviation) and get the same nodes without
+    solving IK again; only the θ samples not held yet are solved."""
+
+    def __init__(self) -> None:
+        self.held: dict[bytes, tuple[int, np.ndarray, np.ndarray]] = {}  # key -> p, q (p, 8, 6), ok (p, 8)
+
+    def ladder(self, robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray,
+               p: int) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`ladder`, remembered."""
+        positions, normals = np.asarray(positions, float), np.asarray(normals, float)
+        m = len(positions)
+        q = np.full((m, p, 8, 6), np.nan)
+        ok = np.zeros((m, p, 8), bool)
+        need = np.ones((m, p), bool)
+        keys = [a.tobytes() + b.tobytes() for a, b in zip(positions, normals)]
+        for i, key in enumerate(keys):
+            have = self.held.get(key)
+            if have is None:
+                continue
+            ph, qh, okh = have
+            if ph % p == 0:
+                q[i], ok[i], need[i] = qh[:: ph // p], okh[:: ph // p], False
+            elif p % ph == 0:
+                q[i, :: p // ph], ok[i, :: p // ph], need[i, :: p // ph] = qh, okh, False
+        rows = np.flatnonzero(need.any(axis=1))
+        if len(rows):
+            T = flange_poses(cell, positions[rows], normals[rows], p)  # (r, p, 4, 4)
+            r, t = np.nonzero(need[rows])
+            qn, okn = _limited_ik(robot, cell, T[r, t])
+            q[rows[r], t], ok[rows[r], t] = qn, okn
+            for i in rows:
+                if self.held.get(keys[i], (0,))[0] < p:
+                    self.held[keys[i]] = (p, q[i].copy(), ok[i].copy())
+        return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
+
+
 def ladder_at(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray,
               branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """One node per waypoint: IK branch ``branch`` (n,) at its own rotation ``thetas`` (n,) rad about
@@ -381,6 +421,7 @@ def deviate_axes(
         for cand in cands:  # (n, 3) per azimuth
             rows = np.flatnonzero(~done & (cand[:, 2] > -1 + 1e-9))
             rows = rows[~blocked_rungs(collides, positions[left[rows]], cand[rows])]
+            rows = rows[~hopeless_rungs(collides, positions[left[rows]], cand[rows], p)]
             if len(rows) == 0:
                 continue
             q, ok = ladder(robot, cell, positions[left[rows]], cand[rows], p)
@@ -401,6 +442,27 @@ def blocked_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, positions
     if test is None or not len(positions):
         return np.zeros(len(positions), bool)
     return np.asarray(test(deposition_frames(positions, normals, np.zeros(1))[:, 0]), bool)
+
+
+def hopeless_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, positions: np.ndarray,
+                   normals: np.ndarray, p: int) -> np.ndarray:
+    """(m,) bool: waypoints where at each of the p rotations θ (Eq. 4.3) the nozzle frame alone
+    puts a static body in contact with the carried platform or part (the predicate's per-frame test
+    ``collides.held_blocked(frames)``, :meth:`curvslice.collision.CollisionScene.held_blocked`): then
+    every node of the rung collides, at p and at every p whose θ samples nest in it; all False
+    without that test. θ samples are tried one at a time over the rungs still blocked."""
+    test = getattr(collides, "held_blocked", None)
+    out = np.zeros(len(positions), bool)
+    if test is None or not len(positions):
+        return out
+    left = np.arange(len(positions))
+    thetas = rotation_samples(p)
+    for theta in thetas:
+        left = left[np.asarray(test(deposition_frames(positions[left], normals[left], np.array([theta]))[:, 0]), bool)]
+        if not len(left):
+            return out
+    out[left] = True
+    return out
 
 
 def _any_free(q: np.ndarray, ok: np.ndarray, collides: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:

@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from curvslice.kinematics import Robot
-from curvslice.ladder import (TWO_PI, blocked_rungs, circular_joints, deviate_axes, joint_steps, ladder, ladder_at,
-                              shortest_path)
+from curvslice.ladder import (TWO_PI, RungMemo, blocked_rungs, circular_joints, deviate_axes, hopeless_rungs, joint_steps,
+                              ladder, ladder_at, shortest_path)
 from curvslice.workcell import Workcell
 
 
@@ -129,17 +129,23 @@ def _search(
     max_rotations: int | None,
     dense: np.ndarray | None,
     ends: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    memo: RungMemo | None = None,
 ) -> _Found:
     """The ladder search of :func:`plan_motion` on every rung (p doubling on the breaks' rungs,
     lazy collision checks). ``ends``: joints the first / last rung is pinned to (a single node,
-    known collision-free), e.g. where a stretch meets an already planned path."""
+    known collision-free), e.g. where a stretch meets an already planned path. ``memo``: IK nodes
+    of rungs asked before (:class:`curvslice.ladder.RungMemo`)."""
+    rungs = ladder if memo is None else (lambda *a: memo.ladder(*a))
     m = len(positions)
     lo, hi = cell.limits(robot)
     circ = circular_joints(lo, hi)
     p = start_rotations(cell.rotations)
     limit = max_rotations or 4 * cell.rotations
+    finest = p  # the largest p the doubling below reaches
+    while finest * 2 <= limit:
+        finest *= 2
     level = np.full(m, p)  # p of each rung
-    q, solved = ladder(robot, cell, positions, normals, p)
+    q, solved = rungs(robot, cell, positions, normals, p)
     solved_at = np.full(m, p)  # p of the IK solutions held for each rung
     known = np.zeros((m, 8 * p), np.int8)  # collision answers: 0 unknown, 1 free, -1 colliding
     fixed = np.zeros(m, bool)
@@ -159,7 +165,7 @@ def _search(
     while True:
         redo = np.flatnonzero((solved_at < level) & ~fixed & ~dead)  # refined rungs: IK at the finer θ samples
         if len(redo):
-            q[redo], solved[redo] = ladder(robot, cell, positions[redo], normals[redo], p)
+            q[redo], solved[redo] = rungs(robot, cell, positions[redo], normals[redo], p)
             solved_at[redo] = p
         theta = np.arange(8 * p) // 8
         valid = solved & (theta[None, :] % (p // level)[:, None] == 0)
@@ -184,6 +190,12 @@ def _search(
         passed = np.cumsum(dead)
         split_rows = rows[cut + 1][passed[rows[cut + 1]] == passed[rows[cut]]]
         skipped = (path.node < 0) & ~dead
+        if skipped.any():  # skipped because every θ up to the finest p collides: dead too (no p can help)
+            hopeless = np.flatnonzero(skipped)
+            hopeless = hopeless[hopeless_rungs(collides, positions[hopeless], normals[hopeless], finest)]
+            dead[hopeless], skipped[hopeless] = True, False
+            passed = np.cumsum(dead)
+            split_rows = rows[cut + 1][passed[rows[cut + 1]] == passed[rows[cut]]]
         breaks = len(split_rows) + int(skipped.sum())
         if best is None or breaks < best[0]:
             best = (breaks, int(level.max()), q.copy(), valid, path)
@@ -250,6 +262,7 @@ def plan_motion(
     max_rotations: int | None = None,
     dense: np.ndarray | None = None,
     keep: np.ndarray | None = None,
+    memo: RungMemo | None = None,
 ) -> Motion:
     """Joint trajectory for one waypoint sequence (a layer's tool-paths, in print order).
 
@@ -265,7 +278,8 @@ def plan_motion(
     rungs (edges Eq. 4.4 over the summed Δt); between two kept rungs of one motion on one IK branch
     the waypoints take that branch at θ interpolated in time (one IK each), checked for ξ (Eq. 4.4)
     and collisions; a stretch where that fails (or the coarse path breaks) gets the full ladder search
-    between its two kept nodes. ``None``: the full ladder on every rung.
+    between its two kept nodes. ``None``: the full ladder on every rung. ``memo``
+    (:class:`curvslice.ladder.RungMemo`): IK nodes shared by the searches (same nodes, solved once).
     """
     positions = np.asarray(positions, float)
     normals = np.asarray(normals, float)
@@ -275,7 +289,7 @@ def plan_motion(
 
     def search(r: slice | np.ndarray, step: np.ndarray, ends=(None, None)) -> _Found:
         return _search(robot, cell, positions[r], normals[r], step, collides, cost, weights, max_rotations,
-                       None if dense is None else dense[r], ends)
+                       None if dense is None else dense[r], ends, memo)
 
     if keep is None or m < 3 or np.all(keep):
         found = search(slice(None), np.asarray(dt))
@@ -475,17 +489,22 @@ class Remembered:
     def __init__(self, collides: Callable[[np.ndarray], np.ndarray]):
         self.collides, self.known, self.asked = collides, {}, 0
         self.dead: dict[bytes, bool] = {}
+        self.held: dict[bytes, bool] = {}
         if hasattr(collides, "blocked"):
-            self.blocked = self._blocked
+            self.blocked = lambda frames: self._frames(frames, self.collides.blocked, self.dead)
+        if hasattr(collides, "held_blocked"):
+            self.held_blocked = lambda frames: self._frames(frames, self.collides.held_blocked, self.held)
 
-    def _blocked(self, frames: np.ndarray) -> np.ndarray:
-        """The predicate's whole-rung test (``collides.blocked(frames)``), remembered per frame."""
+    @staticmethod
+    def _frames(frames: np.ndarray, test: Callable[[np.ndarray], np.ndarray], known: dict[bytes, bool]) -> np.ndarray:
+        """The predicate's per-frame test (``collides.blocked`` for whole rungs, ``held_blocked`` for
+        one θ), remembered per frame in ``known``."""
         frames = np.ascontiguousarray(frames, float)
         keys = [f.tobytes() for f in frames]
-        new = [i for i, k in enumerate(keys) if k not in self.dead]
+        new = [i for i, k in enumerate(keys) if k not in known]
         if new:
-            self.dead.update(zip((keys[i] for i in new), self.collides.blocked(frames[new]).tolist()))
-        return np.array([self.dead[k] for k in keys], bool).reshape(len(frames))
+            known.update(zip((keys[i] for i in new), np.asarray(test(frames[new]), bool).tolist()))
+        return np.array([known[k] for k in keys], bool).reshape(len(frames))
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         q = np.ascontiguousarray(q, float)
@@ -530,11 +549,12 @@ def plan_layer(
     keep = coarse_rungs(path_id, coarse_step) if coarse_step > 1 else None
     axes, deviation, tried = planned, np.zeros(len(rows)), np.zeros(len(rows), bool)
     collides = None if collides is None else Remembered(collides)
+    memo = RungMemo()  # every pass asks mostly the same rungs
     while True:
         dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed) \
             if len(rows) > 1 else np.zeros(0)
         near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
-        motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near, keep)
+        motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near, keep, memo)
         stuck = (motion.segment < 0) & ~tried
         if not stuck.any() or cell.max_axis_deviation <= 0:
             break
