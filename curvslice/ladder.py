@@ -15,6 +15,7 @@ Waypoints whose rung has no usable node get a bounded tilt of the tool axis (:fu
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -196,6 +197,7 @@ def shortest_path(
     node_ok: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     group: np.ndarray | None = None,
     edge_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    edge_memo: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
 ) -> tuple[LadderPath, np.ndarray, int]:
     """Multi-source shortest path through a ladder (m rungs, K nodes, 6 joints), rung by rung.
 
@@ -203,7 +205,9 @@ def shortest_path(
     returns which of the given nodes are usable (e.g. collision-free); it is called lazily on path
     nodes; where one is rejected, the other nodes of its ``group`` (labels (K,), e.g. the IK branch;
     default: the whole rung) in that rung are asked too. ``edge_cache`` (rung i -> edges i to i+1) may
-    carry edges over from an earlier call on the same nodes (edges to nodes invalid now are ignored).
+    carry edges over from an earlier call on the same nodes (edges to nodes invalid now are ignored);
+    ``edge_memo`` keeps the edges between two rungs by their content (nodes and Δt: the same edges
+    whatever call asks, e.g. :class:`RungMemo`'s ``edges``).
     Returns the path, the final validity mask, and how many nodes ``node_ok`` was asked about.
     """
     q = np.where(valid[..., None], q, np.nan)
@@ -216,8 +220,17 @@ def shortest_path(
     def edges(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         # edges only lose endpoints between passes (_relax masks invalid ones), so keep them
         if i not in cache:
+            key = None
+            if edge_memo is not None:
+                key = hashlib.blake2b(q[i].tobytes() + q[i + 1].tobytes() + np.float64(dt[i]).tobytes(),
+                                      digest_size=16).digest()
+                if key in edge_memo:
+                    cache[i] = edge_memo[key]
+                    return cache[i]
             ia, ib, w = sparse_edges(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)
             cache[i] = (ia.astype(np.int32), ib.astype(np.int32), w)
+            if key is not None:
+                edge_memo[key] = cache[i]
         return cache[i]
 
     _relax(valid, best, pred, 0, edges)
@@ -315,13 +328,16 @@ def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndar
 
 class RungMemo:
     """IK nodes of the rungs :func:`ladder` was asked for before, per waypoint and tool axis, at the
-    finest p asked (the θ samples of p are every (p'/p)-th of p' ≥ p when p divides p', Eq. 4.3): a
-    layer's searches ask the same rungs again (the finer ladder of a break, a stretch searched again
-    with wider ends, the layer planned again after an axis deviation) and get the same nodes without
-    solving IK again; only the θ samples not held yet are solved."""
+    finest p asked (the θ samples of p are every (p'/p)-th of p' ≥ p when p divides p', Eq. 4.3), and
+    the edges between rungs (``edges``, for :func:`shortest_path`'s ``edge_memo``): a layer's
+    searches ask the same rungs again (the finer ladder of a break, a stretch searched again with
+    wider ends, the layer planned again after an axis deviation) and get the same nodes and edges
+    without solving IK or testing node pairs again; only the θ samples not held yet are solved.
+    One memo serves one workcell, robot, cost and step-time rule (a layer's plan)."""
 
     def __init__(self) -> None:
         self.held: dict[bytes, tuple[int, np.ndarray, np.ndarray]] = {}  # key -> p, q (p, 8, 6), ok (p, 8)
+        self.edges: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def ladder(self, robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray,
                p: int) -> tuple[np.ndarray, np.ndarray]:
@@ -353,16 +369,23 @@ class RungMemo:
         return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
 
 
-def ladder_at(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray,
-              branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One node per waypoint: IK branch ``branch`` (n,) at its own rotation ``thetas`` (n,) rad about
-    the nozzle axis (Eq. 4.3, the θ convention of :func:`ladder`); q (n, 6) and whether it exists
-    inside the limits (n,), represented as in :func:`ladder`."""
+def turned_frames(positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+    """Deposition frames (n, 4, 4) of waypoints each at its own rotation ``thetas`` (n,) rad about
+    the nozzle axis (the θ convention of :func:`curvslice.workcell.deposition_frames`)."""
     T = deposition_frames(positions, normals, np.zeros(1))[:, 0]
     c, s = np.cos(thetas), np.sin(thetas)
     Rz = np.zeros((len(T), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
     T[:, :3, :3] = T[:, :3, :3] @ Rz
+    return T
+
+
+def ladder_at(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray,
+              branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One node per waypoint: IK branch ``branch`` (n,) at its own rotation ``thetas`` (n,) rad about
+    the nozzle axis (Eq. 4.3, the θ convention of :func:`ladder`); q (n, 6) and whether it exists
+    inside the limits (n,), represented as in :func:`ladder`."""
+    T = turned_frames(positions, normals, thetas)
     return _limited_ik(robot, cell, cell.nozzle @ rigid_inverse(T) @ rigid_inverse(cell.platform_mount), branch)
 
 
@@ -442,6 +465,18 @@ def blocked_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, positions
     if test is None or not len(positions):
         return np.zeros(len(positions), bool)
     return np.asarray(test(deposition_frames(positions, normals, np.zeros(1))[:, 0]), bool)
+
+
+def held_frames(collides: Callable[[np.ndarray], np.ndarray] | None, positions: np.ndarray, normals: np.ndarray,
+                thetas: np.ndarray) -> np.ndarray:
+    """(n,) bool: waypoints (positions, axes (n, 3)) at their own rotation ``thetas`` (n,) about the
+    nozzle axis (Eq. 4.3) whose nozzle frame alone puts a static body in contact with the carried
+    platform or part (``collides.held_blocked``): every IK branch there collides. All False without
+    that test."""
+    test = getattr(collides, "held_blocked", None)
+    if test is None or not len(positions):
+        return np.zeros(len(positions), bool)
+    return np.asarray(test(turned_frames(positions, normals, thetas)), bool)
 
 
 def hopeless_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, positions: np.ndarray,

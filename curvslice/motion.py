@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from curvslice.kinematics import Robot
-from curvslice.ladder import (TWO_PI, RungMemo, blocked_rungs, circular_joints, deviate_axes, hopeless_rungs, joint_steps,
-                              ladder, ladder_at, shortest_path)
-from curvslice.workcell import Workcell
+from curvslice.ladder import (TWO_PI, RungMemo, blocked_rungs, circular_joints, deviate_axes, held_frames, hopeless_rungs,
+                              joint_steps, ladder, ladder_at, shortest_path)
+from curvslice.workcell import Workcell, rotation_samples
 
 
 @dataclass
@@ -174,6 +174,16 @@ def _search(
             nonlocal asked_total
             ans = known[r, k]
             todo = np.flatnonzero(ans == 0)
+            # on rungs with a colliding node already, first one test per nozzle frame (rung, θ): where
+            # a static body meets the platform or part there, all 8 IK branches at that θ collide
+            held = todo[(known[r[todo]] < 0).any(axis=1) & ~fixed[r[todo]]] if len(todo) else todo
+            if len(held):
+                pairs, back = np.unique(r[held] * p + k[held] // 8, return_inverse=True)
+                hit = held_frames(collides, positions[pairs // p], normals[pairs // p], rotation_samples(p)[pairs % p])
+                for rung, s in zip(pairs[hit] // p, pairs[hit] % p):
+                    known[rung, 8 * s:8 * s + 8] = -1
+                ans[held[hit[back.ravel()]]] = -1
+                todo = np.flatnonzero(ans == 0)
             if len(todo):
                 ans[todo] = np.where(collides(q[r[todo], k[todo]]), -1, 1)
                 known[r[todo], k[todo]] = ans[todo]
@@ -182,7 +192,8 @@ def _search(
 
         branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
         path, _, _ = shortest_path(q, valid & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
-                                   None if collides is None else node_ok, branch, edges)
+                                   None if collides is None else node_ok, branch, edges,
+                                   None if memo is None else memo.edges)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
         # (a dead rung's skip and the split after it are no break a finer ladder could mend)
         rows = np.flatnonzero(path.node >= 0)
