@@ -564,7 +564,7 @@ def plan_layer(
     while True:
         dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed) \
             if len(rows) > 1 else np.zeros(0)
-        near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
+        near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1))[REFINE_WINDOW:REFINE_WINDOW + len(rows)] > 0
         motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near, keep, memo)
         stuck = (motion.segment < 0) & ~tried
         if not stuck.any() or cell.max_axis_deviation <= 0:

@@ -133,12 +133,16 @@ def _local_derivatives(q: np.ndarray, t: np.ndarray, seg: np.ndarray) -> tuple[n
     return acc, jerk
 
 
-def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> Check:
-    platform = None
+def _platform_vertices(outdir: Path) -> np.ndarray | None:
     if (outdir / "field.npz").exists():
         with np.load(outdir / "field.npz") as field:
             if "platform_vertices" in field:
-                platform = field["platform_vertices"]
+                return field["platform_vertices"]
+    return None
+
+
+def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> Check:
+    platform = _platform_vertices(outdir)
     scene = CollisionScene(robot, cell, platform)
     meshes = _layer_meshes(outdir)
     hits: list[str] = []
@@ -157,7 +161,7 @@ def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> 
 
 def _realized_check(outdir: Path, robot, cell, tp, index: np.ndarray) -> Check:
     """Every tool-path sample has a joint row, or is listed in report.json (``robot.layers[].
-    skipped_rows``, with its reason) and re-confirmed here (:func:`_confirm_unreachable`)."""
+    skipped_rows``, with its reason) and re-confirmed here (:func:`confirm_unreachable`)."""
     total = len(tp["positions"])
     missing = np.setdiff1d(np.arange(total), np.unique(index))
     covered = total - len(missing)
@@ -170,7 +174,8 @@ def _realized_check(outdir: Path, robot, cell, tp, index: np.ndarray) -> Check:
     if unlisted:
         return Check(STAGE, "waypoints realized", False, f"{covered}/{total}, {len(unlisted)} missing rows not listed",
                      f"rows {unlisted[:5]} have no joint row and no reason in report.json robot.layers[].skipped_rows")
-    confirmed = _confirm_unreachable(outdir, robot, cell, tp, missing)
+    platform = _platform_vertices(outdir)
+    confirmed = confirm_unreachable(robot, cell, platform, _layer_meshes(outdir), tp, missing)
     detail = (f"{len(missing)} listed in report.json with a reason, {int(confirmed.sum())} confirmed unreachable: "
               f"fcl at {cell.rotations} rotations x {len(_sample_axes(cell, np.array([0.0, 0.0, 1.0])))} axes "
               f"(tilts up to {np.degrees(cell.max_axis_deviation):g} deg)")
@@ -190,20 +195,16 @@ def _sample_axes(cell, axis: np.ndarray) -> np.ndarray:
     return axes[axes[:, 2] > -1 + 1e-9]
 
 
-def _confirm_unreachable(outdir: Path, robot, cell, tp, missing: np.ndarray) -> np.ndarray:
-    """(len(missing),) bool: no sampled pose of the waypoint is usable, re-derived from the geometry
+def confirm_unreachable(robot, cell, platform: np.ndarray | None, meshes: list[trimesh.Trimesh], tp,
+                        missing: np.ndarray) -> np.ndarray:
+    """(len(missing),) bool: no sampled pose of the tool-path rows ``missing`` (``tp``: toolpaths.npz
+    arrays; ``meshes``: the layers, ``platform``: its vertices) is usable, re-derived from the geometry
     (the report is not trusted): at its planned axis and every tilt of :func:`_sample_axes`, at each
     of the workcell's rotations θ about the nozzle axis (Eq. 4.3), either fcl finds a static body
     (extruder, obstacle) in contact with the platform or the earlier layers at the platform pose that
     nozzle frame fixes (T_B^P = T_B^N (T_P^N)⁻¹: then every IK branch has that contact), or every IK
     solution inside the joint limits has a colliding pair (fcl on all pairs)."""
-    platform = None
-    if (outdir / "field.npz").exists():
-        with np.load(outdir / "field.npz") as field:
-            if "platform_vertices" in field:
-                platform = field["platform_vertices"]
     scene = CollisionScene(robot, cell, platform)
-    meshes = _layer_meshes(outdir)
     lo, hi = cell.limits(robot)
     request = fcl.CollisionRequest()
     out = np.zeros(len(missing), bool)
