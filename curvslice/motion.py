@@ -176,7 +176,9 @@ def _search(
             todo = np.flatnonzero(ans == 0)
             # on rungs with a colliding node already, first one test per nozzle frame (rung, θ): where
             # a static body meets the platform or part there, all 8 IK branches at that θ collide
-            held = todo[(known[r[todo]] < 0).any(axis=1) & ~fixed[r[todo]]] if len(todo) else todo
+            useful = getattr(collides, "held_useful", None)
+            held = todo[(known[r[todo]] < 0).any(axis=1) & ~fixed[r[todo]]] \
+                if len(todo) and useful is not None and useful() else todo[:0]
             if len(held):
                 pairs, back = np.unique(r[held] * p + k[held] // 8, return_inverse=True)
                 hit = held_frames(collides, positions[pairs // p], normals[pairs // p], rotation_samples(p)[pairs % p])
@@ -504,7 +506,20 @@ class Remembered:
         if hasattr(collides, "blocked"):
             self.blocked = lambda frames: self._frames(frames, self.collides.blocked, self.dead)
         if hasattr(collides, "held_blocked"):
-            self.held_blocked = lambda frames: self._frames(frames, self.collides.held_blocked, self.held)
+            self.held_blocked = self._held_blocked
+        self.held_asked = self.held_hits = 0
+
+    def _held_blocked(self, frames: np.ndarray) -> np.ndarray:
+        out = self._frames(frames, self.collides.held_blocked, self.held)
+        self.held_asked += len(out)
+        self.held_hits += int(out.sum())
+        return out
+
+    def held_useful(self) -> bool:
+        """Whether the per-frame test (``held_blocked``) still pays before node-by-node checks: it
+        found contacts in at least a quarter of the frames asked so far (near the platform, where
+        whole θ collide), or fewer than 64 were asked."""
+        return self.held_asked < 64 or 4 * self.held_hits >= self.held_asked
 
     @staticmethod
     def _frames(frames: np.ndarray, test: Callable[[np.ndarray], np.ndarray], known: dict[bytes, bool]) -> np.ndarray:
