@@ -172,8 +172,9 @@ def _realized_check(outdir: Path, robot, cell, tp, index: np.ndarray) -> Check:
               for e in layer.get("skipped_rows", []) if e.get("reason")}
     unlisted = [int(r) for r in missing if int(r) not in listed]
     if unlisted:
-        return Check(STAGE, "waypoints realized", False, f"{covered}/{total}, {len(unlisted)} missing rows not listed",
-                     f"rows {unlisted[:5]} have no joint row and no reason in report.json robot.layers[].skipped_rows")
+        return Check(STAGE, "waypoints realized", False, f"{covered}/{total}",
+                     f"{len(unlisted)} rows without a joint row are not listed with a reason in report.json "
+                     f"robot.layers[].skipped_rows (e.g. {unlisted[:5]})")
     platform = _platform_vertices(outdir)
     confirmed = confirm_unreachable(robot, cell, platform, _layer_meshes(outdir), tp, missing)
     detail = (f"{len(missing)} listed in report.json with a reason, {int(confirmed.sum())} confirmed unreachable: "
