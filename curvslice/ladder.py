@@ -197,7 +197,7 @@ def shortest_path(
     node_ok: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     group: np.ndarray | None = None,
     edge_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
-    edge_memo: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    edge_memo: EdgeMemo | None = None,
 ) -> tuple[LadderPath, np.ndarray, int]:
     """Multi-source shortest path through a ladder (m rungs, K nodes, 6 joints), rung by rung.
 
@@ -206,8 +206,8 @@ def shortest_path(
     nodes; where one is rejected, the other nodes of its ``group`` (labels (K,), e.g. the IK branch;
     default: the whole rung) in that rung are asked too. ``edge_cache`` (rung i -> edges i to i+1) may
     carry edges over from an earlier call on the same nodes (edges to nodes invalid now are ignored);
-    ``edge_memo`` keeps the edges between two rungs by their content (nodes and Δt: the same edges
-    whatever call asks, e.g. :class:`RungMemo`'s ``edges``).
+    ``edge_memo`` (:class:`EdgeMemo`) keeps the edges between two rungs by their content (nodes and
+    Δt: the same edges whatever call asks, e.g. :class:`RungMemo`'s ``edges``).
     Returns the path, the final validity mask, and how many nodes ``node_ok`` was asked about.
     """
     q = np.where(valid[..., None], q, np.nan)
@@ -224,13 +224,14 @@ def shortest_path(
             if edge_memo is not None:
                 key = hashlib.blake2b(q[i].tobytes() + q[i + 1].tobytes() + np.float64(dt[i]).tobytes(),
                                       digest_size=16).digest()
-                if key in edge_memo:
-                    cache[i] = edge_memo[key]
+                found = edge_memo.get(key)
+                if found is not None:
+                    cache[i] = found
                     return cache[i]
             ia, ib, w = sparse_edges(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)
             cache[i] = (ia.astype(np.int32), ib.astype(np.int32), w)
             if key is not None:
-                edge_memo[key] = cache[i]
+                edge_memo.put(key, cache[i])
         return cache[i]
 
     _relax(valid, best, pred, 0, edges)
@@ -326,6 +327,30 @@ def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndar
     return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
 
 
+#: bytes of edges an :class:`EdgeMemo` holds at most (the oldest are dropped first)
+EDGE_MEMO_BYTES = 128 * 2**20
+
+
+class EdgeMemo:
+    """Edges between two rungs (ia, ib, w) by a digest of their content, for :func:`shortest_path`:
+    at most ``budget`` bytes, the oldest dropped first (a dropped entry is computed again)."""
+
+    def __init__(self, budget: int = EDGE_MEMO_BYTES) -> None:
+        self.budget, self.size = budget, 0
+        self.held: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def get(self, key: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        return self.held.get(key)
+
+    def put(self, key: bytes, edges: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        if key in self.held:
+            return
+        self.held[key] = edges
+        self.size += sum(a.nbytes for a in edges)
+        while self.size > self.budget and self.held:
+            self.size -= sum(a.nbytes for a in self.held.pop(next(iter(self.held))))
+
+
 class RungMemo:
     """IK nodes of the rungs :func:`ladder` was asked for before, per waypoint and tool axis, at the
     finest p asked (the θ samples of p are every (p'/p)-th of p' ≥ p when p divides p', Eq. 4.3), and
@@ -337,7 +362,7 @@ class RungMemo:
 
     def __init__(self) -> None:
         self.held: dict[bytes, tuple[int, np.ndarray, np.ndarray]] = {}  # key -> p, q (p, 8, 6), ok (p, 8)
-        self.edges: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self.edges = EdgeMemo()
 
     def ladder(self, robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray,
                p: int) -> tuple[np.ndarray, np.ndarray]:

@@ -12,6 +12,7 @@ import pytest
 from curvslice.collision import CollisionScene
 from curvslice.kinematics import fk, fk_reference, load_robot
 from curvslice.ladder import (
+    EdgeMemo,
     RungMemo,
     blocked_rungs,
     circular_joints,
@@ -419,15 +420,18 @@ def test_edge_memo_keeps_the_shortest_path_and_is_reused():
     rng = np.random.default_rng(11)
     for _ in range(30):
         q, valid, dt, circ = _random_ladder(rng)
-        memo: dict = {}
+        memo, small = EdgeMemo(), EdgeMemo(budget=2000)
         want, _, _ = shortest_path(q, valid, dt, 1.0, circ)
         got, _, _ = shortest_path(q, valid, dt, 1.0, circ, edge_memo=memo)
-        size = len(memo)
+        size = len(memo.held)
         again, _, _ = shortest_path(q, valid, dt, 1.0, circ, edge_memo=memo)
-        for path in (got, again):
+        for _ in range(2):
+            tight, _, _ = shortest_path(q, valid, dt, 1.0, circ, edge_memo=small)  # entries dropped, same path
+            assert small.size <= small.budget
+        for path in (got, again, tight):
             np.testing.assert_array_equal(path.node, want.node)
             assert path.cost == want.cost
-        assert len(memo) == size  # the second search computed no edges
+        assert len(memo.held) == size  # the second search computed no edges
 
 
 def test_held_frames_collide_on_every_branch_at_that_rotation(ur5):
