@@ -111,6 +111,8 @@ PROBES = 24
 BOUNDS_BATCH = 64
 #: printed layers per BVH of the carried part (see :meth:`CollisionScene.for_layer`)
 PART_BLOCK = 16
+#: block bases whose pieces a scene keeps (see :meth:`CollisionScene.for_layer`)
+KEPT_BASES = 2
 #: cells of the part's distance field along its longest side at most (cells ≥ 0.5 mm)
 FIELD_CELLS = 160
 
@@ -131,6 +133,7 @@ class CollisionScene:
                  bounds: bool = True):
         self.robot = robot
         self.mount = cell.platform_mount
+        self.nozzle = cell.nozzle
         self.links = [_mesh_shape(s.link, s.mesh) for s in robot.links]
         self.static = []
         self.static_poses = []
@@ -147,8 +150,7 @@ class CollisionScene:
         self._answers = [{}]  # per carried body: {static body: {relative pose: fcl's answer}}
         self.bounds = SphereBounds(robot, cell, platform) if bounds else None
         self.fcl_configs = 0  # configurations that needed at least one fcl pair test
-        self._block_key: tuple[int, ...] = ()
-        self._pieces: dict[tuple[int, ...], _Piece] = {}  # the part before the current block, and its tails
+        self._pieces: dict[tuple[int, ...], dict[tuple[int, ...], _Piece]] = {}  # per block base: its pieces
         self._symmetric = [b.kind in ("cylinder", "cone") for b in list(cell.extruder) + list(cell.obstacles)]
         # probes for _inside_box, per connected piece of every link mesh (body frame): up to PROBES
         # of its vertices, the link carrying it, its bounding sphere
@@ -211,26 +213,62 @@ class CollisionScene:
                              for k in np.flatnonzero(near[i]))
         return out
 
+    def held_blocked(self, frames: np.ndarray) -> np.ndarray:
+        """(n,) bool: nozzle frames (n, 4, 4) in the model frame P, each at its own rotation θ about
+        the nozzle axis, where a static body (extruder or obstacle) meets the platform or the part
+        carried now. The frame fixes the platform's pose in the base frame (T_B^P = T_B^N (T_P^N)⁻¹,
+        Eq. 2.3), so such a contact is one of the checked carried/static pairs at every
+        configuration realizing that frame, on every IK branch: fcl's own answer for the node, found
+        once per frame instead of once per node (a world-aligned box test first)."""
+        frames = np.asarray(frames, float).reshape(-1, 4, 4)
+        out = np.zeros(len(frames), bool)
+        if not len(frames) or not self.static:
+            return out
+        held = self.nozzle @ rigid_inverse(frames)  # T_B^P per frame
+        shapes = self.carried
+        R, t = held[:, :3, :3], held[:, :3, 3]
+        centre = np.stack([(R @ c.center) + t for c in shapes], axis=1)  # (n, C, 3) carried boxes in B
+        reach = np.stack([np.abs(R) @ c.half for c in shapes], axis=1)
+        s_centre = np.array([(P[:3, :3] @ sh.center) + P[:3, 3] for sh, P in zip(self.static, self.static_poses)])
+        s_reach = np.array([np.abs(P[:3, :3]) @ sh.half for sh, P in zip(self.static, self.static_poses)])
+        near = (np.abs(centre[:, :, None] - s_centre[None, None]) <= reach[:, :, None] + s_reach[None, None]).all(axis=-1)
+        request = fcl.CollisionRequest()
+        for i in np.flatnonzero(near.any(axis=(1, 2))):
+            for c, k in zip(*np.nonzero(near[i])):
+                _set(shapes[c].obj, held[i])
+                if fcl.collide(shapes[c].obj, self.static[k].obj, request, fcl.CollisionResult()):
+                    out[i] = True
+                    break
+        return out
+
     def for_layer(self, layers: list[trimesh.Trimesh], layer: int):
         """Carry the union of layers 1..layer-1 (print order) and return the scene, the layer's
         collision predicate (``scene(q)``, :meth:`collisions`; :meth:`blocked` for whole rungs).
 
         The part is carried as two pieces (BVH and distance field): the layers before the last
-        multiple of ``PART_BLOCK`` (built once per block of layers) and the few layers after it
-        (built once per layer of the block: the jerk stage returns to a block's layers round after
-        round); rebuilding the whole part every layer is quadratic in the layers."""
+        multiple of ``PART_BLOCK`` (the block's base, built once per block of layers) and the few
+        layers after it (built once per layer of the block); rebuilding the whole part every layer
+        is quadratic in the layers (more pieces cost more in every query than they save). The
+        pieces of the last ``KEPT_BASES`` bases are kept, so a task whose layers straddle a block
+        boundary, asked for its layers again (the jerk stage after the graph search), builds
+        nothing twice."""
         earlier = layers[: max(layer - 1, 0)]
         cut = len(earlier) // PART_BLOCK * PART_BLOCK
+        base = tuple(id(m) for m in earlier[:cut] if len(m.faces))
+        if base not in self._pieces:
+            self._pieces[base] = {}
+            for old in list(self._pieces)[:-KEPT_BASES]:
+                del self._pieces[old]
+        kept = self._pieces[base]
         pieces = []
-        for i, block in enumerate((earlier[:cut], earlier[cut:])):
-            block = [m for m in block if len(m.faces)]
-            key = tuple(id(m) for m in block)
-            if i == 0 and key != self._block_key:  # a new block: the old one and its tails are done
-                self._block_key, self._pieces = key, {}
-            if block and key not in self._pieces:
-                self._pieces[key] = self._piece(trimesh.util.concatenate(block))
-            if block:
-                pieces.append(self._pieces[key])
+        for run in (earlier[:cut], earlier[cut:]):
+            run = [m for m in run if len(m.faces)]
+            if not run:
+                continue
+            key = tuple(id(m) for m in run)
+            if key not in kept:
+                kept[key] = self._piece(trimesh.util.concatenate(run))
+            pieces.append(kept[key])
         self._carry(pieces)
         return self
 

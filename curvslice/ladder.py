@@ -15,6 +15,7 @@ Waypoints whose rung has no usable node get a bounded tilt of the tool axis (:fu
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -23,7 +24,7 @@ from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import dijkstra
 
 from curvslice.kinematics import Robot, ik, rigid_inverse
-from curvslice.workcell import Workcell, deposition_frames, flange_poses
+from curvslice.workcell import Workcell, deposition_frames, flange_poses, rotation_samples
 
 TWO_PI = 2 * np.pi
 
@@ -196,6 +197,7 @@ def shortest_path(
     node_ok: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
     group: np.ndarray | None = None,
     edge_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
+    edge_memo: EdgeMemo | None = None,
 ) -> tuple[LadderPath, np.ndarray, int]:
     """Multi-source shortest path through a ladder (m rungs, K nodes, 6 joints), rung by rung.
 
@@ -203,7 +205,9 @@ def shortest_path(
     returns which of the given nodes are usable (e.g. collision-free); it is called lazily on path
     nodes; where one is rejected, the other nodes of its ``group`` (labels (K,), e.g. the IK branch;
     default: the whole rung) in that rung are asked too. ``edge_cache`` (rung i -> edges i to i+1) may
-    carry edges over from an earlier call on the same nodes (edges to nodes invalid now are ignored).
+    carry edges over from an earlier call on the same nodes (edges to nodes invalid now are ignored);
+    ``edge_memo`` (:class:`EdgeMemo`) keeps the edges between two rungs by their content (nodes and
+    Δt: the same edges whatever call asks, e.g. :class:`RungMemo`'s ``edges``).
     Returns the path, the final validity mask, and how many nodes ``node_ok`` was asked about.
     """
     q = np.where(valid[..., None], q, np.nan)
@@ -216,8 +220,18 @@ def shortest_path(
     def edges(i: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         # edges only lose endpoints between passes (_relax masks invalid ones), so keep them
         if i not in cache:
+            key = None
+            if edge_memo is not None:
+                key = hashlib.blake2b(q[i].tobytes() + q[i + 1].tobytes() + np.float64(dt[i]).tobytes(),
+                                      digest_size=16).digest()
+                found = edge_memo.get(key)
+                if found is not None:
+                    cache[i] = found
+                    return cache[i]
             ia, ib, w = sparse_edges(q[i], q[i + 1], dt[i], max_speed, circular, cost, weights)
             cache[i] = (ia.astype(np.int32), ib.astype(np.int32), w)
+            if key is not None:
+                edge_memo.put(key, cache[i])
         return cache[i]
 
     _relax(valid, best, pred, 0, edges)
@@ -313,16 +327,90 @@ def ladder(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndar
     return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
 
 
-def ladder_at(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray,
-              branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """One node per waypoint: IK branch ``branch`` (n,) at its own rotation ``thetas`` (n,) rad about
-    the nozzle axis (Eq. 4.3, the θ convention of :func:`ladder`); q (n, 6) and whether it exists
-    inside the limits (n,), represented as in :func:`ladder`."""
+#: bytes of edges an :class:`EdgeMemo` holds at most (the oldest are dropped first)
+EDGE_MEMO_BYTES = 128 * 2**20
+
+
+class EdgeMemo:
+    """Edges between two rungs (ia, ib, w) by a digest of their content, for :func:`shortest_path`:
+    at most ``budget`` bytes, the oldest dropped first (a dropped entry is computed again)."""
+
+    def __init__(self, budget: int = EDGE_MEMO_BYTES) -> None:
+        self.budget, self.size = budget, 0
+        self.held: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def get(self, key: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        return self.held.get(key)
+
+    def put(self, key: bytes, edges: tuple[np.ndarray, np.ndarray, np.ndarray]) -> None:
+        if key in self.held:
+            return
+        self.held[key] = edges
+        self.size += sum(a.nbytes for a in edges)
+        while self.size > self.budget and self.held:
+            self.size -= sum(a.nbytes for a in self.held.pop(next(iter(self.held))))
+
+
+class RungMemo:
+    """IK nodes of the rungs :func:`ladder` was asked for before, per waypoint and tool axis, at the
+    finest p asked (the θ samples of p are every (p'/p)-th of p' ≥ p when p divides p', Eq. 4.3), and
+    the edges between rungs (``edges``, for :func:`shortest_path`'s ``edge_memo``): a layer's
+    searches ask the same rungs again (the finer ladder of a break, a stretch searched again with
+    wider ends, the layer planned again after an axis deviation) and get the same nodes and edges
+    without solving IK or testing node pairs again; only the θ samples not held yet are solved.
+    One memo serves one workcell, robot, cost and step-time rule (a layer's plan)."""
+
+    def __init__(self) -> None:
+        self.held: dict[bytes, tuple[int, np.ndarray, np.ndarray]] = {}  # key -> p, q (p, 8, 6), ok (p, 8)
+        self.edges = EdgeMemo()
+
+    def ladder(self, robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray,
+               p: int) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`ladder`, remembered."""
+        positions, normals = np.asarray(positions, float), np.asarray(normals, float)
+        m = len(positions)
+        q = np.full((m, p, 8, 6), np.nan)
+        ok = np.zeros((m, p, 8), bool)
+        need = np.ones((m, p), bool)
+        keys = [a.tobytes() + b.tobytes() for a, b in zip(positions, normals)]
+        for i, key in enumerate(keys):
+            have = self.held.get(key)
+            if have is None:
+                continue
+            ph, qh, okh = have
+            if ph % p == 0:
+                q[i], ok[i], need[i] = qh[:: ph // p], okh[:: ph // p], False
+            elif p % ph == 0:
+                q[i, :: p // ph], ok[i, :: p // ph], need[i, :: p // ph] = qh, okh, False
+        rows = np.flatnonzero(need.any(axis=1))
+        if len(rows):
+            T = flange_poses(cell, positions[rows], normals[rows], p)  # (r, p, 4, 4)
+            r, t = np.nonzero(need[rows])
+            qn, okn = _limited_ik(robot, cell, T[r, t])
+            q[rows[r], t], ok[rows[r], t] = qn, okn
+            for i in rows:
+                if self.held.get(keys[i], (0,))[0] < p:
+                    self.held[keys[i]] = (p, q[i].copy(), ok[i].copy())
+        return q.reshape(m, 8 * p, 6), ok.reshape(m, 8 * p)
+
+
+def turned_frames(positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray) -> np.ndarray:
+    """Deposition frames (n, 4, 4) of waypoints each at its own rotation ``thetas`` (n,) rad about
+    the nozzle axis (the θ convention of :func:`curvslice.workcell.deposition_frames`)."""
     T = deposition_frames(positions, normals, np.zeros(1))[:, 0]
     c, s = np.cos(thetas), np.sin(thetas)
     Rz = np.zeros((len(T), 3, 3))
     Rz[:, 0, 0], Rz[:, 0, 1], Rz[:, 1, 0], Rz[:, 1, 1], Rz[:, 2, 2] = c, -s, s, c, 1.0
     T[:, :3, :3] = T[:, :3, :3] @ Rz
+    return T
+
+
+def ladder_at(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, thetas: np.ndarray,
+              branch: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """One node per waypoint: IK branch ``branch`` (n,) at its own rotation ``thetas`` (n,) rad about
+    the nozzle axis (Eq. 4.3, the θ convention of :func:`ladder`); q (n, 6) and whether it exists
+    inside the limits (n,), represented as in :func:`ladder`."""
+    T = turned_frames(positions, normals, thetas)
     return _limited_ik(robot, cell, cell.nozzle @ rigid_inverse(T) @ rigid_inverse(cell.platform_mount), branch)
 
 
@@ -381,6 +469,7 @@ def deviate_axes(
         for cand in cands:  # (n, 3) per azimuth
             rows = np.flatnonzero(~done & (cand[:, 2] > -1 + 1e-9))
             rows = rows[~blocked_rungs(collides, positions[left[rows]], cand[rows])]
+            rows = rows[~hopeless_rungs(collides, positions[left[rows]], cand[rows], p)]
             if len(rows) == 0:
                 continue
             q, ok = ladder(robot, cell, positions[left[rows]], cand[rows], p)
@@ -401,6 +490,39 @@ def blocked_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, positions
     if test is None or not len(positions):
         return np.zeros(len(positions), bool)
     return np.asarray(test(deposition_frames(positions, normals, np.zeros(1))[:, 0]), bool)
+
+
+def held_frames(collides: Callable[[np.ndarray], np.ndarray] | None, positions: np.ndarray, normals: np.ndarray,
+                thetas: np.ndarray) -> np.ndarray:
+    """(n,) bool: waypoints (positions, axes (n, 3)) at their own rotation ``thetas`` (n,) about the
+    nozzle axis (Eq. 4.3) whose nozzle frame alone puts a static body in contact with the carried
+    platform or part (``collides.held_blocked``): every IK branch there collides. All False without
+    that test."""
+    test = getattr(collides, "held_blocked", None)
+    if test is None or not len(positions):
+        return np.zeros(len(positions), bool)
+    return np.asarray(test(turned_frames(positions, normals, thetas)), bool)
+
+
+def hopeless_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, positions: np.ndarray,
+                   normals: np.ndarray, p: int) -> np.ndarray:
+    """(m,) bool: waypoints where at each of the p rotations θ (Eq. 4.3) the nozzle frame alone
+    puts a static body in contact with the carried platform or part (the predicate's per-frame test
+    ``collides.held_blocked(frames)``, :meth:`curvslice.collision.CollisionScene.held_blocked`): then
+    every node of the rung collides, at p and at every p whose θ samples nest in it; all False
+    without that test. θ samples are tried one at a time over the rungs still blocked."""
+    test = getattr(collides, "held_blocked", None)
+    out = np.zeros(len(positions), bool)
+    if test is None or not len(positions):
+        return out
+    left = np.arange(len(positions))
+    thetas = rotation_samples(p)
+    for theta in thetas:
+        left = left[np.asarray(test(deposition_frames(positions[left], normals[left], np.array([theta]))[:, 0]), bool)]
+        if not len(left):
+            return out
+    out[left] = True
+    return out
 
 
 def _any_free(q: np.ndarray, ok: np.ndarray, collides: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:

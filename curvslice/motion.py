@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from curvslice.kinematics import Robot
-from curvslice.ladder import (TWO_PI, blocked_rungs, circular_joints, deviate_axes, joint_steps, ladder, ladder_at,
-                              shortest_path)
-from curvslice.workcell import Workcell
+from curvslice.ladder import (TWO_PI, RungMemo, blocked_rungs, circular_joints, deviate_axes, held_frames, hopeless_rungs,
+                              joint_steps, ladder, ladder_at, shortest_path)
+from curvslice.workcell import Workcell, rotation_samples
 
 
 @dataclass
@@ -129,17 +129,23 @@ def _search(
     max_rotations: int | None,
     dense: np.ndarray | None,
     ends: tuple[np.ndarray | None, np.ndarray | None] = (None, None),
+    memo: RungMemo | None = None,
 ) -> _Found:
     """The ladder search of :func:`plan_motion` on every rung (p doubling on the breaks' rungs,
     lazy collision checks). ``ends``: joints the first / last rung is pinned to (a single node,
-    known collision-free), e.g. where a stretch meets an already planned path."""
+    known collision-free), e.g. where a stretch meets an already planned path. ``memo``: IK nodes
+    of rungs asked before (:class:`curvslice.ladder.RungMemo`)."""
+    rungs = ladder if memo is None else (lambda *a: memo.ladder(*a))
     m = len(positions)
     lo, hi = cell.limits(robot)
     circ = circular_joints(lo, hi)
     p = start_rotations(cell.rotations)
     limit = max_rotations or 4 * cell.rotations
+    finest = p  # the largest p the doubling below reaches
+    while finest * 2 <= limit:
+        finest *= 2
     level = np.full(m, p)  # p of each rung
-    q, solved = ladder(robot, cell, positions, normals, p)
+    q, solved = rungs(robot, cell, positions, normals, p)
     solved_at = np.full(m, p)  # p of the IK solutions held for each rung
     known = np.zeros((m, 8 * p), np.int8)  # collision answers: 0 unknown, 1 free, -1 colliding
     fixed = np.zeros(m, bool)
@@ -159,7 +165,7 @@ def _search(
     while True:
         redo = np.flatnonzero((solved_at < level) & ~fixed & ~dead)  # refined rungs: IK at the finer θ samples
         if len(redo):
-            q[redo], solved[redo] = ladder(robot, cell, positions[redo], normals[redo], p)
+            q[redo], solved[redo] = rungs(robot, cell, positions[redo], normals[redo], p)
             solved_at[redo] = p
         theta = np.arange(8 * p) // 8
         valid = solved & (theta[None, :] % (p // level)[:, None] == 0)
@@ -168,6 +174,18 @@ def _search(
             nonlocal asked_total
             ans = known[r, k]
             todo = np.flatnonzero(ans == 0)
+            # on rungs with a colliding node already, first one test per nozzle frame (rung, θ): where
+            # a static body meets the platform or part there, all 8 IK branches at that θ collide
+            useful = getattr(collides, "held_useful", None)
+            held = todo[(known[r[todo]] < 0).any(axis=1) & ~fixed[r[todo]]] \
+                if len(todo) and useful is not None and useful() else todo[:0]
+            if len(held):
+                pairs, back = np.unique(r[held] * p + k[held] // 8, return_inverse=True)
+                hit = held_frames(collides, positions[pairs // p], normals[pairs // p], rotation_samples(p)[pairs % p])
+                for rung, s in zip(pairs[hit] // p, pairs[hit] % p):
+                    known[rung, 8 * s:8 * s + 8] = -1
+                ans[held[hit[back.ravel()]]] = -1
+                todo = np.flatnonzero(ans == 0)
             if len(todo):
                 ans[todo] = np.where(collides(q[r[todo], k[todo]]), -1, 1)
                 known[r[todo], k[todo]] = ans[todo]
@@ -176,7 +194,8 @@ def _search(
 
         branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
         path, _, _ = shortest_path(q, valid & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
-                                   None if collides is None else node_ok, branch, edges)
+                                   None if collides is None else node_ok, branch, edges,
+                                   None if memo is None else memo.edges)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
         # (a dead rung's skip and the split after it are no break a finer ladder could mend)
         rows = np.flatnonzero(path.node >= 0)
@@ -184,6 +203,12 @@ def _search(
         passed = np.cumsum(dead)
         split_rows = rows[cut + 1][passed[rows[cut + 1]] == passed[rows[cut]]]
         skipped = (path.node < 0) & ~dead
+        if skipped.any():  # skipped because every θ up to the finest p collides: dead too (no p can help)
+            hopeless = np.flatnonzero(skipped)
+            hopeless = hopeless[hopeless_rungs(collides, positions[hopeless], normals[hopeless], finest)]
+            dead[hopeless], skipped[hopeless] = True, False
+            passed = np.cumsum(dead)
+            split_rows = rows[cut + 1][passed[rows[cut + 1]] == passed[rows[cut]]]
         breaks = len(split_rows) + int(skipped.sum())
         if best is None or breaks < best[0]:
             best = (breaks, int(level.max()), q.copy(), valid, path)
@@ -250,6 +275,7 @@ def plan_motion(
     max_rotations: int | None = None,
     dense: np.ndarray | None = None,
     keep: np.ndarray | None = None,
+    memo: RungMemo | None = None,
 ) -> Motion:
     """Joint trajectory for one waypoint sequence (a layer's tool-paths, in print order).
 
@@ -265,7 +291,8 @@ def plan_motion(
     rungs (edges Eq. 4.4 over the summed Δt); between two kept rungs of one motion on one IK branch
     the waypoints take that branch at θ interpolated in time (one IK each), checked for ξ (Eq. 4.4)
     and collisions; a stretch where that fails (or the coarse path breaks) gets the full ladder search
-    between its two kept nodes. ``None``: the full ladder on every rung.
+    between its two kept nodes. ``None``: the full ladder on every rung. ``memo``
+    (:class:`curvslice.ladder.RungMemo`): IK nodes shared by the searches (same nodes, solved once).
     """
     positions = np.asarray(positions, float)
     normals = np.asarray(normals, float)
@@ -275,7 +302,7 @@ def plan_motion(
 
     def search(r: slice | np.ndarray, step: np.ndarray, ends=(None, None)) -> _Found:
         return _search(robot, cell, positions[r], normals[r], step, collides, cost, weights, max_rotations,
-                       None if dense is None else dense[r], ends)
+                       None if dense is None else dense[r], ends, memo)
 
     if keep is None or m < 3 or np.all(keep):
         found = search(slice(None), np.asarray(dt))
@@ -475,17 +502,35 @@ class Remembered:
     def __init__(self, collides: Callable[[np.ndarray], np.ndarray]):
         self.collides, self.known, self.asked = collides, {}, 0
         self.dead: dict[bytes, bool] = {}
+        self.held: dict[bytes, bool] = {}
         if hasattr(collides, "blocked"):
-            self.blocked = self._blocked
+            self.blocked = lambda frames: self._frames(frames, self.collides.blocked, self.dead)
+        if hasattr(collides, "held_blocked"):
+            self.held_blocked = self._held_blocked
+        self.held_asked = self.held_hits = 0
 
-    def _blocked(self, frames: np.ndarray) -> np.ndarray:
-        """The predicate's whole-rung test (``collides.blocked(frames)``), remembered per frame."""
+    def _held_blocked(self, frames: np.ndarray) -> np.ndarray:
+        out = self._frames(frames, self.collides.held_blocked, self.held)
+        self.held_asked += len(out)
+        self.held_hits += int(out.sum())
+        return out
+
+    def held_useful(self) -> bool:
+        """Whether the per-frame test (``held_blocked``) still pays before node-by-node checks: it
+        found contacts in at least a quarter of the frames asked so far (near the platform, where
+        whole θ collide), or fewer than 64 were asked."""
+        return self.held_asked < 64 or 4 * self.held_hits >= self.held_asked
+
+    @staticmethod
+    def _frames(frames: np.ndarray, test: Callable[[np.ndarray], np.ndarray], known: dict[bytes, bool]) -> np.ndarray:
+        """The predicate's per-frame test (``collides.blocked`` for whole rungs, ``held_blocked`` for
+        one θ), remembered per frame in ``known``."""
         frames = np.ascontiguousarray(frames, float)
         keys = [f.tobytes() for f in frames]
-        new = [i for i, k in enumerate(keys) if k not in self.dead]
+        new = [i for i, k in enumerate(keys) if k not in known]
         if new:
-            self.dead.update(zip((keys[i] for i in new), self.collides.blocked(frames[new]).tolist()))
-        return np.array([self.dead[k] for k in keys], bool).reshape(len(frames))
+            known.update(zip((keys[i] for i in new), np.asarray(test(frames[new]), bool).tolist()))
+        return np.array([known[k] for k in keys], bool).reshape(len(frames))
 
     def __call__(self, q: np.ndarray) -> np.ndarray:
         q = np.ascontiguousarray(q, float)
@@ -530,11 +575,12 @@ def plan_layer(
     keep = coarse_rungs(path_id, coarse_step) if coarse_step > 1 else None
     axes, deviation, tried = planned, np.zeros(len(rows)), np.zeros(len(rows), bool)
     collides = None if collides is None else Remembered(collides)
+    memo = RungMemo()  # every pass asks mostly the same rungs
     while True:
         dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed) \
             if len(rows) > 1 else np.zeros(0)
-        near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1), "same") > 0
-        motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near, keep)
+        near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1))[REFINE_WINDOW:REFINE_WINDOW + len(rows)] > 0
+        motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near, keep, memo)
         stuck = (motion.segment < 0) & ~tried
         if not stuck.any() or cell.max_axis_deviation <= 0:
             break

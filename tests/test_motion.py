@@ -12,10 +12,14 @@ import pytest
 from curvslice.collision import CollisionScene
 from curvslice.kinematics import fk, fk_reference, load_robot
 from curvslice.ladder import (
+    EdgeMemo,
+    RungMemo,
     blocked_rungs,
     circular_joints,
     deviate_axes,
     edge_weights,
+    held_frames,
+    hopeless_rungs,
     ladder,
     ladder_at,
     reference_shortest_path,
@@ -23,7 +27,7 @@ from curvslice.ladder import (
     sparse_edges,
     tilted_axes,
 )
-from curvslice.motion import Remembered, coarse_rungs, plan_motion, step_times, unwind
+from curvslice.motion import Remembered, coarse_rungs, plan_layer, plan_motion, step_times, unwind
 from curvslice.workcell import load_workcell, rotation_samples, waypoints_from_flange
 
 
@@ -397,3 +401,85 @@ def test_remembered_collisions_ask_each_configuration_once():
     np.testing.assert_array_equal(first, np.r_[q[:30], q[:5]][:, 0] > 0)
     np.testing.assert_array_equal(again, q[:, 0] > 0)
     assert asked == [30, 20] and memo.asked == 50
+
+
+def test_rung_memo_gives_the_ladder_nodes_at_any_p(ur5):
+    """Remembered rungs equal fresh ones bit for bit, whether the memo holds a finer p (every other
+    θ sample), a coarser one (only the new samples solved) or neither."""
+    robot, cell = ur5
+    c, t = _dome_spiral(12)
+    memo = RungMemo()
+    for p, rows in ((6, slice(0, 8)), (3, slice(0, 12)), (12, slice(2, 10)), (4, slice(0, 12)), (12, slice(0, 12))):
+        got, got_ok = memo.ladder(robot, cell, c[rows], t[rows], p)
+        want, want_ok = ladder(robot, cell, c[rows], t[rows], p)
+        np.testing.assert_array_equal(got_ok, want_ok)
+        np.testing.assert_array_equal(got, want)
+
+
+def test_edge_memo_keeps_the_shortest_path_and_is_reused():
+    rng = np.random.default_rng(11)
+    for _ in range(30):
+        q, valid, dt, circ = _random_ladder(rng)
+        memo, small = EdgeMemo(), EdgeMemo(budget=2000)
+        want, _, _ = shortest_path(q, valid, dt, 1.0, circ)
+        got, _, _ = shortest_path(q, valid, dt, 1.0, circ, edge_memo=memo)
+        size = len(memo.held)
+        again, _, _ = shortest_path(q, valid, dt, 1.0, circ, edge_memo=memo)
+        for _ in range(2):
+            tight, _, _ = shortest_path(q, valid, dt, 1.0, circ, edge_memo=small)  # entries dropped, same path
+            assert small.size <= small.budget
+        for path in (got, again, tight):
+            np.testing.assert_array_equal(path.node, want.node)
+            assert path.cost == want.cost
+        assert len(memo.held) == size  # the second search computed no edges
+
+
+def test_held_frames_collide_on_every_branch_at_that_rotation(ur5):
+    """A nozzle frame whose extruder meets the platform (one fcl test) makes every IK node at that θ
+    collide (fcl node by node); both answers occur on waypoints near the platform."""
+    robot, cell = ur5
+    scene = CollisionScene(robot, cell)
+    c, t = _platform_waypoints([0.0, 30.0, 45.0, 55.0, 65.0, 80.0], height=2.0)
+    p = cell.rotations
+    q, ok = ladder(robot, cell, c, t, p)
+    j, s = np.divmod(np.arange(len(c) * p), p)
+    held = held_frames(scene, c[j], t[j], rotation_samples(p)[s])
+    assert held.any() and not held.all()
+    assert not held_frames(scene.collisions, c[j], t[j], rotation_samples(p)[s]).any()  # bare predicate: no test
+    for jj, ss in zip(j[held], s[held]):
+        nodes = np.arange(8 * ss, 8 * ss + 8)
+        nodes = nodes[ok[jj, nodes]]
+        assert scene.collisions(q[jj, nodes]).all()
+
+
+def test_hopeless_rungs_never_drop_a_waypoint_with_a_free_pose(ur5):
+    """A rung marked hopeless at p has no collision-free node at p (exhaustive fcl); rungs with one
+    are never marked; the 80° waypoint is (no θ keeps the heater block above the platform)."""
+    robot, cell = ur5
+    scene = CollisionScene(robot, cell)
+    c, t = _platform_waypoints([0.0, 20.0, 40.0, 50.0, 55.0, 60.0, 70.0, 80.0], height=1.5)
+    p = 2 * cell.rotations
+    hopeless = hopeless_rungs(scene, c, t, p)
+    q, ok = ladder(robot, cell, c, t, p)
+    free = np.array([(~scene.collisions(q[j, ok[j]])).any() if ok[j].any() else False for j in range(len(c))])
+    assert not (hopeless & free).any()
+    assert hopeless[-1] and free[0]
+
+
+def test_early_skips_plan_the_same_layer_as_the_full_search(ur5):
+    """plan_layer with the scene (its whole-rung and per-frame tests skip hopeless rungs and θ
+    early) realizes, deviates and skips exactly the waypoints the node-by-node search does, with
+    the same joints."""
+    robot, cell = ur5
+    cell = dataclasses.replace(cell, rotations=8)
+    scene = CollisionScene(robot, cell)
+    c, t = _platform_waypoints([10.0, 55.0, 62.0, 80.0, 30.0], height=1.5)
+    tp = {"positions": c, "normals": t, "path": np.zeros(len(c), int), "feed": np.full(len(c), 1200.0),
+          "layer": np.ones(len(c), int), "extrusion": np.ones(len(c))}
+    rows = np.arange(len(c))
+    fast = plan_layer(robot, cell, tp, rows, scene, coarse_step=1)
+    full = plan_layer(robot, cell, tp, rows, scene.collisions, coarse_step=1)
+    assert 0 < len(fast.index) < len(c) and (fast.deviation > 0).any()
+    np.testing.assert_array_equal(fast.index, full.index)
+    np.testing.assert_array_equal(fast.deviation, full.deviation)
+    np.testing.assert_allclose(fast.q, full.q, atol=1e-12)

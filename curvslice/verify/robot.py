@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import fcl
 import numpy as np
 import trimesh
 
@@ -18,9 +19,10 @@ from curvslice.collision import CollisionScene
 from curvslice.exporters.joints_csv import read_joints_csv
 from curvslice.exporters.rapid import read_rapid_joints
 from curvslice.exporters.urscript import read_urscript_joints
-from curvslice.kinematics import fk_reference, load_robot
+from curvslice.kinematics import fk_reference, ik, load_robot
+from curvslice.ladder import tilted_axes
 from curvslice.verify import Check
-from curvslice.workcell import workcell_from_dict
+from curvslice.workcell import deposition_frames, rotation_samples, workcell_from_dict
 
 STAGE = "robot"
 POSITION_TOL = 1e-3  # mm (1e-6 m)
@@ -64,11 +66,7 @@ def checks(outdir: Path) -> list[Check] | None:
         out.append(Check(STAGE, "axis deviation within bound", top <= bound + 1e-6,
                          f"{moved} rows, max {top:.2f} deg",
                          f"realized axis (joints.csv) vs tool-path axis, bound {bound:g} deg (workcell.json)"))
-        covered = len(np.unique(rows["index"]))
-        total = len(tp["positions"])
-        out.append(Check(STAGE, "waypoints realized", covered == total, f"{covered}/{total}",
-                         "every tool-path sample has a joint row" if covered == total else
-                         "unreachable samples have no joint row (see report.json robot.layers[].skipped_rows: row and reason)"))
+        out.append(_realized_check(outdir, robot, cell, tp, rows["index"]))
     pos_err = np.linalg.norm(tip - want_pos, axis=1).max() if n else 0.0
     ax_err = _angle(axis, want_axis).max() if n else 0.0
     out.append(Check(STAGE, "FK reproduces waypoint position", pos_err <= POSITION_TOL, f"{pos_err:.2e} mm",
@@ -172,12 +170,16 @@ def _local_derivatives(q: np.ndarray, t: np.ndarray, seg: np.ndarray, orders: tu
     return tuple(out[r] for r in orders)
 
 
-def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> Check:
-    platform = None
+def _platform_vertices(outdir: Path) -> np.ndarray | None:
     if (outdir / "field.npz").exists():
         with np.load(outdir / "field.npz") as field:
             if "platform_vertices" in field:
-                platform = field["platform_vertices"]
+                return field["platform_vertices"]
+    return None
+
+
+def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> Check:
+    platform = _platform_vertices(outdir)
     scene = CollisionScene(robot, cell, platform)
     meshes = _layer_meshes(outdir)
     hits: list[str] = []
@@ -192,6 +194,83 @@ def _collision_check(outdir: Path, robot, cell, rows: dict[str, np.ndarray]) -> 
                     hits.append(f"row {i}: {pairs[0][0]}-{pairs[0][1]}")
     return Check(STAGE, "no collision at any row", count == 0, f"{count} rows",
                  "; ".join(hits) if hits else "fcl on all pairs; part = union of earlier layers")
+
+
+def _realized_check(outdir: Path, robot, cell, tp, index: np.ndarray) -> Check:
+    """Every tool-path sample has a joint row, or is listed in report.json (``robot.layers[].
+    skipped_rows``, with its reason) and re-confirmed here (:func:`confirm_unreachable`)."""
+    total = len(tp["positions"])
+    missing = np.setdiff1d(np.arange(total), np.unique(index))
+    covered = total - len(missing)
+    if not len(missing):
+        return Check(STAGE, "waypoints realized", True, f"{covered}/{total}", "every tool-path sample has a joint row")
+    report = json.loads((outdir / "report.json").read_text()) if (outdir / "report.json").exists() else {}
+    listed = {int(e["row"]) for layer in (report.get("robot") or {}).get("layers", [])
+              for e in layer.get("skipped_rows", []) if e.get("reason")}
+    unlisted = [int(r) for r in missing if int(r) not in listed]
+    if unlisted:
+        return Check(STAGE, "waypoints realized", False, f"{covered}/{total}",
+                     f"{len(unlisted)} rows without a joint row are not listed with a reason in report.json "
+                     f"robot.layers[].skipped_rows (e.g. {unlisted[:5]})")
+    platform = _platform_vertices(outdir)
+    confirmed = confirm_unreachable(robot, cell, platform, _layer_meshes(outdir), tp, missing)
+    detail = (f"{len(missing)} listed in report.json with a reason, {int(confirmed.sum())} confirmed unreachable: "
+              f"fcl at {cell.rotations} rotations x {len(_sample_axes(cell, np.array([0.0, 0.0, 1.0])))} axes "
+              f"(tilts up to {np.degrees(cell.max_axis_deviation):g} deg)")
+    if not confirmed.all():
+        detail += f"; not confirmed: rows {missing[~confirmed][:5].tolist()}"
+    return Check(STAGE, "waypoints realized", bool(confirmed.all()), f"{covered}/{total}", detail)
+
+
+def _sample_axes(cell, axis: np.ndarray) -> np.ndarray:
+    """The planned unit axis and its tilts the workcell allows: rings of ``axis_deviation_step`` up
+    to ``max_axis_deviation``, 8 azimuths each (the bound the planner's deviation search respects)."""
+    axis = axis / np.linalg.norm(axis)
+    rings = np.arange(1, int(np.floor(cell.max_axis_deviation / cell.axis_deviation_step + 1e-9)) + 1) \
+        * cell.axis_deviation_step if cell.axis_deviation_step > 0 else np.zeros(0)
+    out = [axis[None]] + [tilted_axes(axis, a) for a in rings]
+    axes = np.vstack(out)
+    return axes[axes[:, 2] > -1 + 1e-9]
+
+
+def confirm_unreachable(robot, cell, platform: np.ndarray | None, meshes: list[trimesh.Trimesh], tp,
+                        missing: np.ndarray) -> np.ndarray:
+    """(len(missing),) bool: no sampled pose of the tool-path rows ``missing`` (``tp``: toolpaths.npz
+    arrays; ``meshes``: the layers, ``platform``: its vertices) is usable, re-derived from the geometry
+    (the report is not trusted): at its planned axis and every tilt of :func:`_sample_axes`, at each
+    of the workcell's rotations θ about the nozzle axis (Eq. 4.3), either fcl finds a static body
+    (extruder, obstacle) in contact with the platform or the earlier layers at the platform pose that
+    nozzle frame fixes (T_B^P = T_B^N (T_P^N)⁻¹: then every IK branch has that contact), or every IK
+    solution inside the joint limits has a colliding pair (fcl on all pairs)."""
+    scene = CollisionScene(robot, cell, platform)
+    lo, hi = cell.limits(robot)
+    request = fcl.CollisionRequest()
+    out = np.zeros(len(missing), bool)
+    layer = np.asarray(tp["layer"])
+    for value in np.unique(layer[missing]):
+        scene.for_layer(meshes, int(value))
+        pairs = [(c.obj, s.obj) for c in scene.carried for s in scene.static]
+        for i in np.flatnonzero(layer[missing] == value):
+            r = missing[i]
+            axes = _sample_axes(cell, np.asarray(tp["normals"][r], float))
+            frames = deposition_frames(np.repeat(tp["positions"][r][None], len(axes), 0), axes,
+                                       rotation_samples(cell.rotations)).reshape(-1, 4, 4)
+            held = cell.nozzle @ np.linalg.inv(frames)  # platform pose in the base frame per sample
+            free = False
+            for k, T in enumerate(held):
+                for c in scene.carried:
+                    c.obj.setTransform(fcl.Transform(T[:3, :3], T[:3, 3]))
+                if any(fcl.collide(a, b, request, fcl.CollisionResult()) for a, b in pairs):
+                    continue
+                q, ok = ik(robot, (T @ np.linalg.inv(cell.platform_mount))[None])
+                q, ok = q[0], ok[0]
+                q = lo + (q - lo) % (2 * np.pi)  # the same pose's smallest representative above the limit
+                ok &= (q <= hi + 1e-9).all(axis=1)
+                if any(not scene.colliding_pairs(qq) for qq in q[ok]):
+                    free = True
+                    break
+            out[i] = not free
+    return out
 
 
 def _program_checks(outdir: Path, rows: dict[str, np.ndarray]) -> list[Check]:
