@@ -15,7 +15,7 @@ import trimesh
 
 from curvslice.collision import PART_BLOCK, CollisionScene
 from curvslice.executors import Executor, InProcess
-from curvslice.jerk import merge_reports, rest_to_rest_time, trajectory_stage
+from curvslice.jerk import merge_reports, rest_to_rest_time, retime_joins, trajectory_stage
 from curvslice.kinematics import Robot, load_robot
 from curvslice.ladder import ladder
 from curvslice.motion import PrintMotion, join_motions, joint_move_time, plan_layer
@@ -58,7 +58,8 @@ def plan_robot(cell: Workcell, toolpaths: dict[str, np.ndarray], layers: list[tr
                progress: Any = None) -> tuple[PrintMotion, PrintMotion, dict]:
     """The whole print: blocks of layers (:func:`layer_blocks`) as tasks on ``executor`` (default
     in-process; the result does not depend on it), then joined in print order — by the graph's joint
-    moves for the graph motion, by Ruckig's rest-to-rest moves for the jerk-optimized one. Returns the
+    moves for the graph motion, by Ruckig's moves from each block's end state to the next one's start state for the
+    jerk-optimized one. Returns the
     graph motion, the final motion and the trajectory report. ``progress``: tqdm-like, in layers."""
     blocks = layer_blocks(np.asarray(toolpaths["layer"]))
     ex = executor if executor is not None else InProcess()
@@ -70,7 +71,7 @@ def plan_robot(cell: Workcell, toolpaths: dict[str, np.ndarray], layers: list[tr
     if trajectory != "jerk":
         final = graph
     else:
-        final = join_motions([f for _, f, _ in done], rest_to_rest_time(robot, cell))
+        final = retime_joins(robot, cell, join_motions([f for _, f, _ in done], rest_to_rest_time(robot, cell)))
     return graph, final, merge_reports(robot, cell, graph, final, [r for _, _, r in done], trajectory)
 
 

@@ -97,7 +97,7 @@ def checks(outdir: Path) -> list[Check] | None:
                          f"{over} rows over; max {', '.join(f'{v:.3g}' for v in top)} {unit}",
                          f"Eq. 4.7-4.10 at every row inside its segment vs the workcell's "
                          f"{', '.join(f'{v:g}' for v in bound)} {unit}"))
-    out.append(_move_check(q, t, seg, cell, robot, rows["layer"]))
+    out.append(_move_check(q, t, seg, cell, robot))
     max_step = float(np.abs(np.diff(q, axis=0))[inside].max()) if inside.any() else 0.0
     out.append(Check(STAGE, "max joint step in a segment", True, f"{max_step:.4f} rad",
                      f"{int(seg.max()) + 1 if n else 0} motion segments"))
@@ -107,16 +107,11 @@ def checks(outdir: Path) -> list[Check] | None:
     return out
 
 
-def _move_check(q: np.ndarray, t: np.ndarray, seg: np.ndarray, cell, robot, layer: np.ndarray | None = None) -> Check:
-    """Every move between segments lasts at least Ruckig's time-optimal jerk-limited duration from the
-    state the segment ends in to the state the next starts in (q, q̇, q̈ by Eq. 4.7-4.10 at those rows,
-    solved here): the segments need not end at rest, the move must still be one the arm can make.
-
-    With ``layer`` (each row's layer), the moves between the robot stage's blocks of layers
-    (:data:`~curvslice.collision.PART_BLOCK`) are counted apart and do not fail the check: the blocks
-    are joined rest-to-rest until :func:`curvslice.robot_stage.plan_robot` re-times its joined motion
-    (:func:`curvslice.jerk.retime_joins`)."""
-    from curvslice.collision import PART_BLOCK
+def _move_check(q: np.ndarray, t: np.ndarray, seg: np.ndarray, cell, robot) -> Check:
+    """Every move between segments (those between the robot stage's blocks of layers too) lasts at
+    least Ruckig's time-optimal jerk-limited duration from the state the segment ends in to the state
+    the next starts in (q, q̇, q̈ by Eq. 4.7-4.10 at those rows, solved here): the segments need not
+    end at rest, the move must still be one the arm can make."""
     from curvslice.time_scaling import Limits, state_to_state
 
     moves = np.flatnonzero(seg[1:] != seg[:-1])
@@ -128,17 +123,10 @@ def _move_check(q: np.ndarray, t: np.ndarray, seg: np.ndarray, cell, robot, laye
                      for i in moves])
     took = t[moves + 1] - t[moves]
     short = took < need * (1 - 1e-6) - 1e-9
-    joins = np.zeros(len(moves), bool)
-    if layer is not None:
-        block = np.searchsorted(np.unique(layer), layer) // PART_BLOCK
-        joins = block[moves] != block[moves + 1]
-    detail = ("Δt of each move vs Ruckig's state-to-state duration (ξ, a_max, j_max) from the end state of its "
-              "segment to the start state of the next (Eq. 4.7-4.10)")
-    if joins.any():
-        detail += f"; {int((short & joins).sum())} of the {int(joins.sum())} moves between blocks of layers too short (not failed)"
-    return Check(STAGE, "moves between segments within the limits", not (short & ~joins).any(),
-                 f"{int((short & ~joins).sum())} of {int((~joins).sum())} moves too short; shortest margin "
-                 f"{float((took - need)[~joins].min()) if (~joins).any() else 0.0:.3g} s", detail)
+    return Check(STAGE, "moves between segments within the limits", not short.any(),
+                 f"{int(short.sum())} of {len(moves)} moves too short; shortest margin {float((took - need).min()):.3g} s",
+                 "Δt of each move vs Ruckig's state-to-state duration (ξ, a_max, j_max) from the end state of its "
+                 "segment to the start state of the next (Eq. 4.7-4.10)")
 
 
 def _local_derivatives(q: np.ndarray, t: np.ndarray, seg: np.ndarray, orders: tuple[int, ...] = (2, 3)
