@@ -52,12 +52,11 @@ def per_layer_costs(layers, settings) -> dict:
         p = tp_plan._prepare_layer(k, cleaned, supports, settings)
         t1 = time.process_time()
         if settings.start_rule == "chain":
-            f = tp_plan._fold_layer(p, previous, k, cleaned, settings)
+            f = tp_plan._fold_layer(p, previous, settings)
         else:
-            f = tp_plan._fold_layer(p, None, k, cleaned, settings, start=seam,
-                                    backward=k % 2 == 1)
+            f = tp_plan._fold_layer(p, None, settings, start=seam, backward=k % 2 == 1)
         t2 = time.process_time()
-        arrays, _, _, _ = tp_plan._orient_layer(k, f, cleaned, supports, settings)
+        arrays, _, _, _ = tp_plan._orient_layer(k, f, p, cleaned, supports, settings)
         t3 = time.process_time()
         prep.append(t1 - t), fold.append(t2 - t1), orient.append(t3 - t2)
         if "positions" in arrays:
