@@ -9,6 +9,8 @@ Stages see one small interface, :class:`Executor`:
 * ``share(value)`` / ``submit(fn, *args, **kwargs)`` / ``gather(futures)`` — a task graph for work
   whose tasks depend on each other (a sequential fold next to parallel per-layer tasks): in-process,
   ``submit`` runs the call at once and returns its value, so both executors give the same results.
+  ``lane`` places a task (:data:`LANES`): the links of a sequential chain on one worker, which nothing
+  ahead of the chain then delays, and the work the chain waits for on the others.
 
 Tasks are retried on another worker when theirs dies (``retries``); a shared input lost with its
 workers is made again from its task. Which executor runs a stage never changes its
@@ -45,6 +47,14 @@ LOCAL_CLUSTER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHO
                         "distributed.scheduler.work-stealing-interval": "1s"}
 
 
+#: Where :meth:`DaskExecutor.submit` places a task: ``any`` worker (Dask decides); ``chain``, the one
+#: worker that runs the links of a sequential chain (the first by address), so that no other task started
+#: there holds up the next link -- a worker never interrupts a task, and Dask would otherwise place each
+#: link where its largest input lies, often behind another task; ``apart``, the others (what the chain
+#: waits for, so that it is ready in time). Preferences only: a worker that left is not waited for.
+LANES = ("any", "chain", "apart")
+
+
 class InProcess:
     """Every task runs here, at once, in submission order."""
 
@@ -61,7 +71,7 @@ class InProcess:
     def share(self, value: Any) -> Any:
         return value
 
-    def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, lane: str = "any", **kwargs: Any) -> Any:
         return fn(*args, **kwargs)
 
     def gather(self, futures: Sequence, progress=None) -> list:
@@ -94,8 +104,21 @@ class DaskExecutor:
             warnings.filterwarnings("ignore", message="Sending large graph", category=UserWarning)
             return self.client.submit(_value, value, pure=False, retries=self.retries)
 
-    def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
-        return self.client.submit(fn, *args, retries=self.retries, pure=False, priority=priority, **kwargs)
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, lane: str = "any", **kwargs: Any) -> Any:
+        workers = self._lane(lane)
+        return self.client.submit(fn, *args, retries=self.retries, pure=False, priority=priority, workers=workers,
+                                  allow_other_workers=workers is not None, **kwargs)
+
+    def _lane(self, lane: str) -> list[str] | None:
+        """The workers of ``lane`` (:data:`LANES`), ``None`` for any; one worker alone takes every lane."""
+        if lane not in LANES:
+            raise CurvsliceError(f"unknown lane {lane!r} (one of {', '.join(LANES)})")
+        if lane == "any":
+            return None
+        workers = sorted(self.client.scheduler_info(n_workers=-1)["workers"])
+        if len(workers) < 2:
+            return None
+        return workers[:1] if lane == "chain" else workers[1:]
 
     def gather(self, futures: Sequence, progress=None) -> list:
         if progress is not None:

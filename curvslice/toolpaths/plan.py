@@ -520,7 +520,9 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     the ``seam`` start rule one independent task per layer (:func:`_layer_toolpaths`); under ``chain``
     three: the start-independent rings and thickness floor, then -- a chain, since each layer starts
     where the previous one ended -- its pieces, then its orientations. Only the concatenation (path
-    ids numbered on over the layers) is sequential.
+    ids numbered on over the layers) is sequential. On a cluster the chain keeps one worker (lane
+    ``chain``) and the rings are made on the others (``apart``), so that no task holds up the next
+    link; the orientations go wherever there is room.
     """
     ex = executor if executor is not None else InProcess()
     cleaned = [clean_surface(mesh) for mesh in surfaces]
@@ -531,11 +533,11 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         seam = seam_point(cleaned)
         oriented = [ex.submit(_layer_toolpaths, k, seam, supports=shared_supports, **shared) for k in range(len(cleaned))]
     else:
-        prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=1, **shared)
+        prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=1, lane="apart", **shared)
                     for k in range(len(cleaned))]
         folded, previous = [], None
         for k, p in enumerate(prepared):
-            previous = ex.submit(_fold_layer, p, previous, settings, priority=2)
+            previous = ex.submit(_fold_layer, p, previous, settings, priority=2, lane="chain")
             folded.append(previous)
         oriented = [ex.submit(_orient_layer, k, f, p, supports=shared_supports, **shared)
                     for k, (f, p) in enumerate(zip(folded, prepared))]
