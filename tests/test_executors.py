@@ -169,6 +169,7 @@ def test_local_cluster_workers_run_without_profiler_and_dask_malloc_setting():
 
     with open_executor(workers=1) as ex:
         seen = ex.client.run(lambda: (dask.config.get("distributed.worker.profile.enabled"),
-                                      "MALLOC_TRIM_THRESHOLD_" in os.environ))
-    assert list(seen.values()) == [(False, False)]
+                                      "MALLOC_TRIM_THRESHOLD_" in os.environ,
+                                      dask.config.get("distributed.admin.tick.interval")))
+    assert list(seen.values()) == [(False, False, "1s")]
     assert dask.config.get("distributed.worker.profile.enabled")  # the client's own config is left as it was
