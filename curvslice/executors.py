@@ -90,6 +90,7 @@ class DaskExecutor:
 
     def __init__(self, client: Any, retries: int = RETRIES):
         self.client, self.retries = client, retries
+        self._workers: list[str] | None = None  # the cluster's workers when a lane was first asked for
 
     @property
     def workers(self) -> int:
@@ -115,15 +116,17 @@ class DaskExecutor:
                                   allow_other_workers=workers is not None, **kwargs)
 
     def _lane(self, lane: str) -> list[str] | None:
-        """The workers of ``lane`` (:data:`LANES`), ``None`` for any; one worker alone takes every lane."""
+        """The workers of ``lane`` (:data:`LANES`), ``None`` for any; one worker alone takes every lane. The
+        workers are asked once (a round trip to the scheduler): one that left later is only a preference."""
         if lane not in LANES:
             raise CurvsliceError(f"unknown lane {lane!r} (one of {', '.join(LANES)})")
         if lane == "any":
             return None
-        workers = sorted(self.client.scheduler_info(n_workers=-1)["workers"])
-        if len(workers) < 2:
+        if self._workers is None:
+            self._workers = sorted(self.client.scheduler_info(n_workers=-1)["workers"])
+        if len(self._workers) < 2:
             return None
-        return workers[:1] if lane == "chain" else workers[1:]
+        return self._workers[:1] if lane == "chain" else self._workers[1:]
 
     def gather(self, futures: Sequence, progress=None) -> list:
         if progress is not None:
