@@ -38,8 +38,12 @@ RETRIES = 3
 #:   measured on the kitten's tool-paths); workers of a short run keep glibc's default instead;
 #: * the workers' statistical profiler samples the task thread's stack every 10 ms (the dashboard's
 #:   profile, which a run without dashboard never shows) and takes the GIL from the task each time;
-#: * memory and system monitors and work stealing poll every 0.1-0.5 s: once a second is enough for
-#:   tasks of 0.1-2 s;
+#: * memory and system monitors poll every 0.1-0.5 s: once a second is enough for tasks of 0.1-2 s;
+#: * work stealing moves a queued task to an idle worker even against its lane (:data:`LANES`: loose
+#:   restrictions do not stop it): it put prepares on the chain worker, where the next fold then waited
+#:   16 s behind them (bunny, two workers, load 10); without it, a worker idles rather than take
+#:   another lane's task, and the per-layer maps need no stealing (Dask queues their tasks on the
+#:   scheduler until a worker is free);
 #: * every process checks its event loop's health every 20 ms (``admin.tick``, which only times how late
 #:   the check comes, for a warning after 3 s): an idle two-worker cluster burnt 0.023 CPU s per wall
 #:   second in its workers and 0.020 in the client (the scheduler), 0.006 and 0.008 with a check a second
@@ -48,7 +52,7 @@ LOCAL_CLUSTER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHO
                         "distributed.worker.profile.enabled": False,
                         "distributed.worker.memory.monitor-interval": "1s",
                         "distributed.admin.system-monitor.interval": "1s",
-                        "distributed.scheduler.work-stealing-interval": "1s",
+                        "distributed.scheduler.work-stealing": False,
                         "distributed.admin.tick.interval": "1s"}
 
 
