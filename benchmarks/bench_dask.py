@@ -52,12 +52,11 @@ def per_layer_costs(layers, settings) -> dict:
         p = tp_plan._prepare_layer(k, cleaned, supports, settings)
         t1 = time.process_time()
         if settings.start_rule == "chain":
-            f = tp_plan._fold_layer(p, previous, k, cleaned, settings)
+            f = tp_plan._fold_layer(p, previous, settings)
         else:
-            f = tp_plan._fold_layer(p, None, k, cleaned, settings, start=seam,
-                                    backward=k % 2 == 1)
+            f = tp_plan._fold_layer(p, None, settings, start=seam, backward=k % 2 == 1)
         t2 = time.process_time()
-        arrays, _, _, _ = tp_plan._orient_layer(k, f, cleaned, supports, settings)
+        arrays, _, _, _ = tp_plan._orient_layer(k, f, p, cleaned, supports, settings)
         t3 = time.process_time()
         prep.append(t1 - t), fold.append(t2 - t1), orient.append(t3 - t2)
         if "positions" in arrays:
@@ -85,11 +84,21 @@ def amdahl(costs: dict, workers: tuple[int, ...] = (1, 2, 4, 8, 16, 32, 64), seq
     return rows
 
 
-def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True) -> float:
+#: Seconds from a task's end to the start of a task waiting for it (the scheduler's round trip): a worker
+#: that finishes a fold has started whatever else it holds before the next fold reaches it.
+ROUND_TRIP_S = 0.005
+
+
+def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True, lanes: bool = True,
+             round_trip: float = ROUND_TRIP_S) -> float:
     """Seconds the tool-path stage takes on ``n`` dedicated workers under the task priorities of
     :func:`plan_toolpaths` (folds 2, preparations 1, orientations 0; ties in submission order), by list
-    scheduling the measured per-layer costs (no transfer or scheduler overhead). ``chained=False``: the
-    ``seam`` rule, one task per layer (its three parts) in submission order on the first free worker."""
+    scheduling the measured per-layer costs (no transfer overhead): a task starts ``round_trip`` after
+    its inputs at the earliest, and a free worker starts what it can rather than wait. ``lanes`` (the
+    executor's, ``n`` > 1): the folds on worker 0, the preparations on the others, orientations anywhere;
+    else as Dask places them: a fold where its layer's preparation ran (its largest input), any other task
+    anywhere. ``chained=False``: the ``seam`` rule, one task per layer (its three
+    parts) in submission order on the first free worker."""
     prep, fold, orient = ([c * scale for c in costs[k]] for k in ("prepare_s", "fold_s", "orient_s"))
     m = len(prep)
     if not chained:
@@ -98,22 +107,37 @@ def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True) -> f
             w = int(np.argmin(free))
             free[w] += prep[k] + fold[k] + orient[k]
         return max(free) + costs["client_s"] * scale
+    cost = {"prep": prep, "fold": fold, "orient": orient}
+    rank = {"fold": 2, "prep": 1, "orient": 0}
+    need = {"prep": lambda k: [], "fold": lambda k: [("prep", k)] + ([("fold", k - 1)] if k else []),
+            "orient": lambda k: [("fold", k), ("prep", k)]}
+    lanes = lanes and n > 1
+    lane = {"fold": [0], "prep": list(range(1, n)), "orient": list(range(n))} if lanes else \
+        {kind: list(range(n)) for kind in cost}
+    fold_lane = {}  # without lanes: each fold where its preparation ran
+    todo = {(kind, k) for kind in cost for k in range(m)}
+    ready_at = {("prep", k): 0.0 for k in range(m)}
     done: dict[tuple[str, int], float] = {}
     free = [0.0] * n
-    todo = [("fold", k) for k in range(m)] + [("prep", k) for k in range(m)] + [("orient", k) for k in range(m)]
-    need = {"prep": lambda k: [], "fold": lambda k: [("prep", k)] + ([("fold", k - 1)] if k and chained else []),
-            "orient": lambda k: [("fold", k)]}
-    cost = {"prep": prep, "fold": fold, "orient": orient}
     while todo:
-        w = int(np.argmin(free))
-        ready = [t for t in todo if all(d in done for d in need[t[0]](t[1]))]
-        # the first ready task by priority that can start now, else the one whose inputs come first
-        start = {t: max([free[w]] + [done[d] for d in need[t[0]](t[1])]) for t in ready}
-        now = [t for t in ready if start[t] <= free[w]]
-        task = now[0] if now else min(ready, key=lambda t: start[t])
+        best = None
+        for w in range(n):
+            mine = [t for t in ready_at if w in fold_lane.get(t, lane[t[0]])]
+            if not mine:
+                continue
+            start = max(free[w], min(ready_at[t] for t in mine))
+            task = max((t for t in mine if ready_at[t] <= start), key=lambda t: (rank[t[0]], -t[1]))
+            if best is None or start < best[0]:
+                best = (start, w, task)
+        start, w, task = best
         todo.remove(task)
-        done[task] = start[task] + cost[task[0]][task[1]]
-        free[w] = done[task]
+        del ready_at[task]
+        done[task] = free[w] = start + cost[task[0]][task[1]]
+        if task[0] == "prep" and not lanes:
+            fold_lane[("fold", task[1])] = [w]
+        for after in (("fold", task[1] + 1), ("fold", task[1]), ("orient", task[1])):
+            if after in todo and all(d in done for d in need[after[0]](after[1])):
+                ready_at[after] = max(done[d] for d in need[after[0]](after[1])) + round_trip
     return max(done.values()) + costs["client_s"] * scale
 
 

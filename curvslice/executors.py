@@ -9,6 +9,8 @@ Stages see one small interface, :class:`Executor`:
 * ``share(value)`` / ``submit(fn, *args, **kwargs)`` / ``gather(futures)`` — a task graph for work
   whose tasks depend on each other (a sequential fold next to parallel per-layer tasks): in-process,
   ``submit`` runs the call at once and returns its value, so both executors give the same results.
+  ``lane`` places a task (:data:`LANES`): the links of a sequential chain on one worker, which nothing
+  ahead of the chain then delays, and the work the chain waits for on the others.
 
 Tasks are retried on another worker when theirs dies (``retries``); a shared input lost with its
 workers is made again from its task. Which executor runs a stage never changes its
@@ -36,13 +38,30 @@ RETRIES = 3
 #:   measured on the kitten's tool-paths); workers of a short run keep glibc's default instead;
 #: * the workers' statistical profiler samples the task thread's stack every 10 ms (the dashboard's
 #:   profile, which a run without dashboard never shows) and takes the GIL from the task each time;
-#: * memory and system monitors and work stealing poll every 0.1-0.5 s: once a second is enough for
-#:   tasks of 0.1-2 s.
+#: * memory and system monitors poll every 0.1-0.5 s: once a second is enough for tasks of 0.1-2 s;
+#: * work stealing moves a queued task to an idle worker even against its lane (:data:`LANES`: loose
+#:   restrictions do not stop it): it put prepares on the chain worker, where the next fold then waited
+#:   16 s behind them (bunny, two workers, load 10); without it, a worker idles rather than take
+#:   another lane's task, and the per-layer maps need no stealing (Dask queues their tasks on the
+#:   scheduler until a worker is free);
+#: * every process checks its event loop's health every 20 ms (``admin.tick``, which only times how late
+#:   the check comes, for a warning after 3 s): an idle two-worker cluster burnt 0.023 CPU s per wall
+#:   second in its workers and 0.020 in the client (the scheduler), 0.006 and 0.008 with a check a second
+#:   -- on this shared machine, where a run takes minutes of wall time, the larger share of Dask's cost.
 LOCAL_CLUSTER_CONFIG = {"distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
                         "distributed.worker.profile.enabled": False,
                         "distributed.worker.memory.monitor-interval": "1s",
                         "distributed.admin.system-monitor.interval": "1s",
-                        "distributed.scheduler.work-stealing-interval": "1s"}
+                        "distributed.scheduler.work-stealing": False,
+                        "distributed.admin.tick.interval": "1s"}
+
+
+#: Where :meth:`DaskExecutor.submit` places a task: ``any`` worker (Dask decides); ``chain``, the one
+#: worker that runs the links of a sequential chain (the first by address), so that no other task started
+#: there holds up the next link -- a worker never interrupts a task, and Dask would otherwise place each
+#: link where its largest input lies, often behind another task; ``apart``, the others (what the chain
+#: waits for, so that it is ready in time). Preferences only: a worker that left is not waited for.
+LANES = ("any", "chain", "apart")
 
 
 class InProcess:
@@ -61,7 +80,7 @@ class InProcess:
     def share(self, value: Any) -> Any:
         return value
 
-    def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, lane: str = "any", **kwargs: Any) -> Any:
         return fn(*args, **kwargs)
 
     def gather(self, futures: Sequence, progress=None) -> list:
@@ -75,6 +94,7 @@ class DaskExecutor:
 
     def __init__(self, client: Any, retries: int = RETRIES):
         self.client, self.retries = client, retries
+        self._workers: list[str] | None = None  # the cluster's workers when a lane was first asked for
 
     @property
     def workers(self) -> int:
@@ -94,8 +114,23 @@ class DaskExecutor:
             warnings.filterwarnings("ignore", message="Sending large graph", category=UserWarning)
             return self.client.submit(_value, value, pure=False, retries=self.retries)
 
-    def submit(self, fn: Callable, *args: Any, priority: int = 0, **kwargs: Any) -> Any:
-        return self.client.submit(fn, *args, retries=self.retries, pure=False, priority=priority, **kwargs)
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, lane: str = "any", **kwargs: Any) -> Any:
+        workers = self._lane(lane)
+        return self.client.submit(fn, *args, retries=self.retries, pure=False, priority=priority, workers=workers,
+                                  allow_other_workers=workers is not None, **kwargs)
+
+    def _lane(self, lane: str) -> list[str] | None:
+        """The workers of ``lane`` (:data:`LANES`), ``None`` for any; one worker alone takes every lane. The
+        workers are asked once (a round trip to the scheduler): one that left later is only a preference."""
+        if lane not in LANES:
+            raise CurvsliceError(f"unknown lane {lane!r} (one of {', '.join(LANES)})")
+        if lane == "any":
+            return None
+        if self._workers is None:
+            self._workers = sorted(self.client.scheduler_info(n_workers=-1)["workers"])
+        if len(self._workers) < 2:
+            return None
+        return self._workers[:1] if lane == "chain" else self._workers[1:]
 
     def gather(self, futures: Sequence, progress=None) -> list:
         if progress is not None:

@@ -137,6 +137,31 @@ def test_uncrossing_keeps_a_pieces_ends(seed, n):
     assert length(p[order]) <= length(p) + 1e-9
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(2, 40), st.booleans(), st.integers(0, 3))
+def test_a_layers_end_read_off_its_last_piece_is_its_last_sample(seed, n, reverse, repeats):
+    """The chain's fold reads where a layer ends off its last piece, without uncrossing and re-sampling
+    it (that runs in the parallel orient task, with the final bead widths): whenever ``_printed_end``
+    answers, it is exactly the last sample the orient task makes of that piece -- with the fitted widths
+    or any others. Random walks cross themselves; ``repeats`` copies of the end point (or points within
+    1e-9 of it) sit next to it, where re-sampling merges points."""
+    from curvslice.toolpaths.plan import LayerPaths, ToolpathSettings, _piece_samples, _printed_end
+
+    rng = np.random.default_rng(seed)
+    p = np.c_[rng.normal(size=(n, 2)).cumsum(axis=0), rng.normal(size=n) * 0.1]
+    end = p[0] if reverse else p[-1]
+    near = end + rng.choice([0.0, 5e-10, 3e-9], size=(repeats, 1)) * rng.normal(size=(repeats, 3))
+    p = np.vstack([p[:1], near, p[1:]]) if reverse else np.vstack([p, near])[np.r_[0:n - 1, n:n + repeats, n - 1]]
+    paths = LayerPaths(pieces=[p], widths=[np.full(len(p), 1.0)])
+    found = _printed_end(p, reverse)
+    for widths in ([np.full(len(p), 1.0)], [rng.uniform(0.5, 2.0, len(p))]):
+        samples = _piece_samples(paths, widths, (0, reverse), ToolpathSettings())
+        if found is not None:
+            assert len(samples) >= 2 and np.array_equal(found, samples[-1, :3])
+    if repeats == 0:
+        assert found is not None  # the usual case: no point of a random walk repeats its end
+
+
 def test_local_cluster_workers_run_without_profiler_and_dask_malloc_setting():
     """The settings of :data:`LOCAL_CLUSTER_CONFIG` reach the workers' processes (from their nannies),
     not only the client's."""
@@ -144,6 +169,7 @@ def test_local_cluster_workers_run_without_profiler_and_dask_malloc_setting():
 
     with open_executor(workers=1) as ex:
         seen = ex.client.run(lambda: (dask.config.get("distributed.worker.profile.enabled"),
-                                      "MALLOC_TRIM_THRESHOLD_" in os.environ))
-    assert list(seen.values()) == [(False, False)]
+                                      "MALLOC_TRIM_THRESHOLD_" in os.environ,
+                                      dask.config.get("distributed.admin.tick.interval")))
+    assert list(seen.values()) == [(False, False, "1s")]
     assert dask.config.get("distributed.worker.profile.enabled")  # the client's own config is left as it was

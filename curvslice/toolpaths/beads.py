@@ -19,15 +19,18 @@ from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels,
 
 def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, passes: list[np.ndarray],
                 width: float, min_bead: Callable[[np.ndarray], np.ndarray] | None,
-                fill_gaps: bool) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+                fill_gaps: bool, samples: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray], int]:
     """The beads of one layer's ``passes`` over ``surface`` (its bridged, possibly subdivided mesh
-    ``vertices``/``faces`` for the gap search): every pass fitted to its strip (:func:`fit_beads`),
+    ``vertices``/``faces`` for the gap search; ``samples``: its :func:`surface_samples`, which do not depend
+    on the passes): every pass fitted to its strip (:func:`fit_beads`),
     :func:`gap_passes` through what even the widest beads leave open when ``fill_gaps`` (then all
     refitted), redundant pieces dropped and the others refitted over their strips
-    (:func:`needed_pieces`; without take-over when a refit falls short), beads widened over the
-    slivers (:func:`fill_slivers`). Returns the pieces, their per-vertex bead widths (mm) and how
-    many gap passes were kept."""
-    samples = surface_samples(surface, width)
+    (:func:`needed_pieces`; without take-over when a refit falls short), loops' seams trimmed
+    (:func:`trim_seams`: it moves pass ends, so it stays here). Returns the pieces, their
+    per-vertex bead widths (mm) and how many gap passes were kept. The caller's last step is widening
+    the beads over the slivers (:func:`fill_slivers`): it changes widths only, never a piece or where it
+    ends, so it need not run where the pieces are made (a layer's pieces decide where the next layer
+    starts, :func:`curvslice.toolpaths.plan.plan_toolpaths`)."""
     owners = _Owners(samples[0], [resample(p, FIT_STEP * width) for p in passes])
     pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
     fill = gap_passes(vertices, faces, pieces, width, widths) if fill_gaps and len(faces) else []
@@ -47,7 +50,6 @@ def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarra
             kept = owners.kept(needed)
             refit = _fit_owned(surface, samples, kept, width, min_bead)
         pieces, widths = refit
-    widths = fill_slivers(samples[0], pieces, widths, width)
     pieces, widths = trim_seams(pieces, widths, width)
     return pieces, widths, int(is_gap[needed].sum())
 

@@ -19,7 +19,7 @@ from curvslice.errors import CurvsliceError
 from curvslice.executors import Executor, InProcess
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.geodesic import boundary_distance, edge_keys
-from curvslice.toolpaths.beads import layer_beads
+from curvslice.toolpaths.beads import fill_slivers, layer_beads, surface_samples
 from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, SUBDIVIDE_EDGE,
                                            THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
 from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
@@ -111,8 +111,9 @@ def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: f
 @dataclass
 class LayerRings:
     """The start-independent part of one layer's tool-paths: its cleaned surface, the bridged (maybe
-    subdivided) mesh ``v``/``f`` of the boundary distance, the iso-distance rings, the peak lines and
-    the thin-wall passes (:func:`layer_rings`); ``None`` rings when the layer has no faces."""
+    subdivided) mesh ``v``/``f`` of the boundary distance, the iso-distance rings, the peak lines,
+    the thin-wall passes and the surface samples the beads are fitted to (:func:`layer_rings`);
+    ``None`` rings and samples when the layer has no faces."""
 
     surface: trimesh.Trimesh
     v: np.ndarray
@@ -123,6 +124,7 @@ class LayerRings:
     thin: list = field(default_factory=list)
     closed: int = 0
     top: float = 0.0
+    samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  #: :func:`surface_samples` of ``surface``
 
 
 def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
@@ -143,8 +145,9 @@ def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = 
 def layer_rings(mesh: trimesh.Trimesh, width: float,
                 min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> LayerRings:
     """The part of :func:`layer_paths` that does not depend on where the previous layer ended: the
-    boundary distance (heat method), its contour rings, peak lines and thin-wall passes, and the bead
-    floor of each ring, which decides whether it is a thin loop (``min_bead``: the layer thickness, from the earlier layers)."""
+    boundary distance (heat method), its contour rings, peak lines and thin-wall passes, the bead
+    floor of each ring, which decides whether it is a thin loop (``min_bead``: the layer thickness, from
+    the earlier layers), and the surface samples of the bead fits (:func:`surface_samples`)."""
     surface = clean_surface(mesh)
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, BRIDGE_HOLE * np.pi * width)
     if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > SUBDIVIDE_EDGE * width:
@@ -173,7 +176,7 @@ def layer_rings(mesh: trimesh.Trimesh, width: float,
         r.top, r.floor = float(bands.top[r.above]), floor_of(r.points)
     extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor_of)
     rings += extra
-    return LayerRings(surface, v, f, bridged, rings, lines, thin, closed, top)
+    return LayerRings(surface, v, f, bridged, rings, lines, thin, closed, top, surface_samples(surface, width))
 
 
 def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, fill_gaps: bool = True,
@@ -182,16 +185,18 @@ def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, f
     ended): the connected spirals from the rings, the beads, and the order of the pieces, each freed of
     its self-crossings (:func:`~curvslice.toolpaths.passes.uncross`)."""
     out, order = _beaded_pieces(r, width, start, fill_gaps, min_bead)
-    done = [_finish_piece(out.pieces[i], out.widths[i], reverse, width) for i, reverse in order]
+    widths = _sliver_widths(r, out, width)
+    done = [_finish_piece(out.pieces[i], widths[i], reverse, width) for i, reverse in order]
     out.pieces, out.widths = [p for p, _ in done], [b for _, b in done]
     return out
 
 
 def _beaded_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, fill_gaps: bool = True,
                   min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[LayerPaths, list[tuple[int, bool]]]:
-    """:func:`layer_pieces` but the last step: the paths with their beaded pieces as fitted, and the print
-    order (piece index, reversed) with its travel. Uncrossing a piece keeps its two ends, so the order,
-    the travel and where the layer ends are known before it: :func:`_finish_piece` can run elsewhere."""
+    """:func:`layer_pieces` but the last steps: the paths with their beaded pieces as fitted (beads not yet
+    widened over the slivers), and the print order (piece index, reversed) with its travel. Widening the
+    beads (:func:`_sliver_widths`) leaves the pieces as they are and uncrossing a piece keeps its two ends,
+    so the order, the travel and where the layer ends are known before either: both can run elsewhere."""
     if r.rings is None:
         return LayerPaths(pieces=[]), []
     surface, v, f, bridged, rings, lines, thin, closed, top = (r.surface, r.v, r.f, r.bridged, r.rings, r.lines,
@@ -201,12 +206,18 @@ def _beaded_pieces(r: LayerRings, width: float, start: np.ndarray | None = None,
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))
     passes = join_touching([p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9], width)
-    out.pieces, out.widths, out.gap_passes = layer_beads(surface, v, f, passes, width, min_bead, fill_gaps)
+    out.pieces, out.widths, out.gap_passes = layer_beads(surface, v, f, passes, width, min_bead, fill_gaps, r.samples)
     order = _order_pieces(out.pieces, start)
     ends = [(out.pieces[i][-1], out.pieces[i][0]) if reverse else (out.pieces[i][0], out.pieces[i][-1])
             for i, reverse in order]
     out.travel = float(sum(np.linalg.norm(b[0] - a[1]) for a, b in zip(ends[:-1], ends[1:])))
     return out, order
+
+
+def _sliver_widths(r: LayerRings, paths: LayerPaths, width: float) -> list[np.ndarray]:
+    """The bead widths of :func:`_beaded_pieces`' ``paths`` widened over the slivers the fits leave
+    (:func:`~curvslice.toolpaths.beads.fill_slivers` on the layer's surface samples); ``paths`` unchanged."""
+    return fill_slivers(r.samples[0], paths.pieces, paths.widths, width) if paths.pieces else paths.widths
 
 
 def _finish_piece(piece: np.ndarray, widths: np.ndarray, reverse: bool, width: float) -> tuple[np.ndarray, np.ndarray]:
@@ -346,23 +357,33 @@ def seam_point(surfaces: list[trimesh.Trimesh]) -> np.ndarray:
 
 
 @dataclass
+class _Floor:
+    """The narrowest bead at given points of a layer: the local layer thickness of the nearest vertex (a
+    bead is never narrower than it is high; ``min_bead`` of :func:`layer_rings` and :func:`layer_pieces`)."""
+
+    vertex_thickness: np.ndarray
+    tree: cKDTree | None
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        return self.vertex_thickness[self.tree.query(points)[1]]
+
+
+@dataclass
 class _Prepared:
     """The start-independent work of one layer (:func:`_prepare_layer`)."""
 
     rings: LayerRings
-    vertex_thickness: np.ndarray
+    floor: _Floor
     seconds: float
 
 
 @dataclass
 class _Folded:
-    """One layer's beaded pieces and their print order (:func:`_beaded_pieces`), the samples of the last
-    pieces as printed (``tail``: by position in the order, up to the last one with two samples), where
-    the layer ends, and the seconds of its :func:`_prepare_layer` and :func:`_fold_layer` work."""
+    """One layer's beaded pieces and their print order (:func:`_beaded_pieces`), where the layer ends, and
+    the seconds of its :func:`_prepare_layer` and :func:`_fold_layer` work."""
 
     paths: LayerPaths
     order: list[tuple[int, bool]]
-    tail: dict[int, np.ndarray]
     cursor: np.ndarray | None
     seconds: float
 
@@ -374,55 +395,71 @@ def _prepare_layer(k: int, surfaces: list[trimesh.Trimesh], supports: list, sett
     # (a floor: fewer candidate triangles than for the samples' own thickness below)
     vertex_thickness = np.clip(_thickness(surface.vertices, _earlier(supports, k, settings.window), FLOOR_CANDIDATES)[1],
                                settings.min_thickness * w, settings.max_thickness * w)
-    vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
-    rings = layer_rings(surface, w, lambda points: vertex_thickness[vertex_tree.query(points)[1]])
-    return _Prepared(rings, vertex_thickness, perf_counter() - t0)
+    floor = _Floor(vertex_thickness, cKDTree(surface.vertices) if len(surface.vertices) else None)
+    return _Prepared(layer_rings(surface, w, floor), floor, perf_counter() - t0)
 
 
-def _fold_layer(prepared: _Prepared, previous: _Folded | None, k: int, surfaces: list[trimesh.Trimesh],
-                settings: ToolpathSettings, start: np.ndarray | None = None, backward: bool = False) -> _Folded:
-    """Layer ``k``'s beaded pieces and their order from ``start``, or (the ``chain`` rule) from where
+def _fold_layer(prepared: _Prepared, previous: _Folded | None, settings: ToolpathSettings,
+                start: np.ndarray | None = None, backward: bool = False) -> _Folded:
+    """A layer's beaded pieces and their order from ``start``, or (the ``chain`` rule) from where
     ``previous`` ended: the sequential part of the stage, so only what decides where the layer ends is
-    done here -- of the pieces' uncrossing and re-sampling only the last ones' (:func:`_orient_layer`
-    does the others). ``backward``: printed in reverse, so that it ends at ``start``."""
+    done here. The surface samples of the fits come from :func:`_prepare_layer`; widening the beads over
+    the slivers, uncrossing and re-sampling run in :func:`_orient_layer` (where the layer ends is read off
+    its last piece: :func:`_printed_end`). ``backward``: printed in reverse, so that it ends at ``start``."""
     t0 = perf_counter()
-    w, surface = settings.path_width, surfaces[k]
+    w = settings.path_width
     cursor = previous.cursor if previous is not None else start
-    vertex_thickness = prepared.vertex_thickness
-    vertex_tree = cKDTree(surface.vertices) if len(surface.vertices) else None
-
-    def min_bead(points: np.ndarray) -> np.ndarray:  # a bead is never narrower than it is high
-        return vertex_thickness[vertex_tree.query(points)[1]]
-
-    paths, order = _beaded_pieces(prepared.rings, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=min_bead)
+    paths, order = _beaded_pieces(prepared.rings, w, start=cursor, fill_gaps=settings.fill_gaps, min_bead=prepared.floor)
     if backward:  # the same pieces printed the other way round: the layer ends where it would start
         order = [(i, not reverse) for i, reverse in order[::-1]]
-    tail = {}
-    for n in range(len(order) - 1, -1, -1):  # the layer ends at the last sample of its last piece of two
-        tail[n] = _piece_samples(paths, order[n], settings)
-        if len(tail[n]) >= 2:
-            cursor = tail[n][-1, :3]
+    for at in order[::-1]:  # the layer ends at the last sample of its last piece of two
+        end = _printed_end(paths.pieces[at[0]], at[1])
+        if end is None:  # the piece's samples tell (the widths, not yet final, never move its end)
+            tail = _piece_samples(paths, paths.widths, at, settings)
+            end = tail[-1, :3] if len(tail) >= 2 else None
+        if end is not None:
+            cursor = end
             break
-    return _Folded(paths, order, tail, cursor, prepared.seconds + perf_counter() - t0)
+    return _Folded(paths, order, cursor, prepared.seconds + perf_counter() - t0)
 
 
-def _piece_samples(paths: LayerPaths, at: tuple[int, bool], settings: ToolpathSettings) -> np.ndarray:
+#: Distance (mm) beyond which :func:`_printed_end` knows a piece's last point survives re-sampling: twice
+#: the distance below which :func:`~curvslice.toolpaths.resampling.resample` merges consecutive points.
+_DISTINCT_END = 2e-9
+
+
+def _printed_end(piece: np.ndarray, reverse: bool) -> np.ndarray | None:
+    """The last sample of ``piece`` as printed (:func:`_piece_samples`) without uncrossing or re-sampling
+    it, when that is certain: uncrossing reorders the inner points only, and re-sampling keeps the last
+    point exactly when it differs from its predecessor -- whatever that is, so when it lies farther than
+    ``_DISTINCT_END`` from every other point of the piece (then the samples are two or more, too). ``None``
+    when not certain."""
+    end = piece[0] if reverse else piece[-1]
+    others = piece[1:] if reverse else piece[:-1]
+    if len(others) and np.linalg.norm(others - end, axis=1).min() > _DISTINCT_END:
+        return np.array(end, np.float64)
+    return None
+
+
+def _piece_samples(paths: LayerPaths, widths: list[np.ndarray], at: tuple[int, bool],
+                   settings: ToolpathSettings) -> np.ndarray:
     """Samples (x, y, z, bead) of the piece ``at`` (index, reversed) of :func:`_beaded_pieces`' ``paths``
-    as printed: uncrossed (:func:`_finish_piece`) and re-sampled (§3.5.2)."""
+    with bead ``widths`` as printed: uncrossed (:func:`_finish_piece`) and re-sampled (§3.5.2)."""
     w = settings.path_width
-    piece, bead = _finish_piece(paths.pieces[at[0]], paths.widths[at[0]], at[1], w)
+    piece, bead = _finish_piece(paths.pieces[at[0]], widths[at[0]], at[1], w)
     return resample(np.c_[piece, bead], settings.step, WIDTH_WEIGHT, TURN_WEIGHT * w)
 
 
-def _orient_layer(k: int, folded: _Folded, surfaces: list[trimesh.Trimesh], supports: list,
+def _orient_layer(k: int, folded: _Folded, prepared: _Prepared, surfaces: list[trimesh.Trimesh], supports: list,
                   settings: ToolpathSettings) -> tuple[dict[str, np.ndarray], dict[str, float], float, float]:
-    """Layer ``k``'s pieces as printed (uncrossed, re-sampled: :func:`_piece_samples`), their orientations
-    (Eq. 3.3), thickness and beads per sample: a parallel task once its pieces are known. Returns its arrays (path ids from 0 within the layer), its report row, and the
-    seconds of its pieces and of this."""
+    """Layer ``k``'s pieces as printed (beads widened over the slivers: :func:`_sliver_widths` on the
+    surface samples of ``prepared``; uncrossed, re-sampled: :func:`_piece_samples`), their orientations
+    (Eq. 3.3), thickness and beads per sample: a parallel task once its pieces are known. Returns its
+    arrays (path ids from 0 within the layer), its report row, and the seconds of its pieces and of this."""
     t1 = perf_counter()
     w, surface, paths = settings.path_width, surfaces[k], folded.paths
-    samples = [folded.tail[n] if n in folded.tail else _piece_samples(paths, at, settings)
-               for n, at in enumerate(folded.order)]
+    widths = _sliver_widths(prepared.rings, paths, w)
+    samples = [_piece_samples(paths, widths, at, settings) for at in folded.order]
     samples = [s for s in samples if len(s) >= 2]
     tri, own_tree, _ = supports[k]
     earlier = _earlier(supports, k, settings.window)
@@ -468,8 +505,8 @@ def _layer_toolpaths(k: int, seam: np.ndarray, surfaces: list[trimesh.Trimesh], 
     :func:`seam_point` (odd ``k``: printed backward, to end there), orientations (what
     :func:`_orient_layer` returns)."""
     prepared = _prepare_layer(k, surfaces, supports, settings)
-    folded = _fold_layer(prepared, None, k, surfaces, settings, start=seam, backward=k % 2 == 1)
-    return _orient_layer(k, folded, surfaces, supports, settings)
+    folded = _fold_layer(prepared, None, settings, start=seam, backward=k % 2 == 1)
+    return _orient_layer(k, folded, prepared, surfaces, supports, settings)
 
 
 def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings = ToolpathSettings(),
@@ -483,7 +520,9 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     the ``seam`` start rule one independent task per layer (:func:`_layer_toolpaths`); under ``chain``
     three: the start-independent rings and thickness floor, then -- a chain, since each layer starts
     where the previous one ended -- its pieces, then its orientations. Only the concatenation (path
-    ids numbered on over the layers) is sequential.
+    ids numbered on over the layers) is sequential. On a cluster the chain keeps one worker (lane
+    ``chain``) and the rings are made on the others (``apart``), so that no task holds up the next
+    link; the orientations go wherever there is room.
     """
     ex = executor if executor is not None else InProcess()
     cleaned = [clean_surface(mesh) for mesh in surfaces]
@@ -494,13 +533,14 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         seam = seam_point(cleaned)
         oriented = [ex.submit(_layer_toolpaths, k, seam, supports=shared_supports, **shared) for k in range(len(cleaned))]
     else:
-        prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=1, **shared)
+        prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=1, lane="apart", **shared)
                     for k in range(len(cleaned))]
         folded, previous = [], None
         for k, p in enumerate(prepared):
-            previous = ex.submit(_fold_layer, p, previous, k, priority=2, **shared)
+            previous = ex.submit(_fold_layer, p, previous, settings, priority=2, lane="chain")
             folded.append(previous)
-        oriented = [ex.submit(_orient_layer, k, f, supports=shared_supports, **shared) for k, f in enumerate(folded)]
+        oriented = [ex.submit(_orient_layer, k, f, p, supports=shared_supports, **shared)
+                    for k, (f, p) in enumerate(zip(folded, prepared))]
     layers = ex.gather(oriented, progress)
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness", "bead")}
     per_layer: list[dict[str, float]] = []
