@@ -12,6 +12,7 @@ from scipy.spatial import cKDTree
 
 from curvslice.toolpaths.constants import (BEAD_RANGE, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
                                            OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS)
+from curvslice.orientation import closest_points
 from curvslice.toolpaths.passes import gap_passes
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
@@ -172,7 +173,32 @@ def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray, 
     widths, with the samples' nearest points); unfitted, one width, without any surface."""
     if not owners.fine or surface.area <= 0:
         return owners.fine, [np.full(len(p), width) for p in owners.fine]
-    return _fit_strips(samples[0], samples[1], owners.fine, width, min_bead, owners.j, samples[2])
+    pieces, beads = _fit_strips(samples[0], samples[1], owners.fine, width, min_bead, owners.j, samples[2])
+    return _onto_layer(surface, samples[0], owners.j, pieces, beads, width)
+
+
+def _onto_layer(surface: trimesh.Trimesh, x: np.ndarray, j: np.ndarray, pieces: list[np.ndarray],
+                beads: list[np.ndarray], width: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Fitted passes moved onto the layer (their closest points: the nozzle runs on the surface, and the
+    samples are projected there anyway before printing, Eq. 3.3), each bead grown to reach from there
+    every surface sample ``x`` it owns (``j``: its pass point) and reached from where the fit put it.
+
+    The fit shifts a pass sideways in the tangent plane and lengthens its ends along their tangents;
+    on a strongly curved layer (the tip of a part, folded through 80-110° within a few widths) that
+    lifts the points a fifth of a width off the surface, over the middle of the fold, where every
+    sample is nearer in 3D than from the fold's floor: projected back, the beads fell short of the
+    fold's sides (rocker-arm 0.8 layer 94: 99.0 → 89.8 % coverage). On a flat layer the points do
+    not move and no bead changes."""
+    pts, bead = np.vstack(pieces), np.concatenate(beads)
+    tri = surface.triangles
+    on, moved, _ = closest_points(pts, tri, cKDTree(tri.mean(axis=1)))
+    if not len(x) or not np.any(moved > 1e-9):
+        return pieces, beads
+    reached = np.linalg.norm(x - pts[j], axis=1) <= 0.5 * bead[j]
+    need = _group_max(j[reached], np.linalg.norm(x[reached] - on[j[reached]], axis=1), len(pts))
+    bead = np.maximum(bead, np.minimum(2.0 * need, BEAD_RANGE[1] * width))
+    stop = np.cumsum([len(p) for p in pieces])[:-1]
+    return np.split(on, stop), np.split(bead, stop)
 
 
 class _Owners:
