@@ -90,10 +90,16 @@ def _seam(ring: Ring, s: float, width: float) -> float:
     return float(at[straight[np.argmin(off)]])
 
 
-def _dot_chord(ring: Ring) -> tuple[np.ndarray, np.ndarray]:
-    """A dot's diameter: its point nearest to its mean, and its point farthest from that one."""
-    centre = ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
-    return centre, ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]
+def _dot_centre(ring: Ring) -> np.ndarray:
+    """A dot's centre, where the links of its spiral reach it: its point nearest to its mean.
+
+    A lone dot is one pass down its centre line instead (:func:`loop_centre_line`, between its
+    farthest pair of points): its round-capped bead, at most ``BEAD_RANGE[1]`` wide, covers a blob
+    up to that broad across its longest extent. A chord from this point (on the dot's narrow side:
+    the ring point nearest the mean ends its shortest axis) to the point farthest from it ran across
+    any blob less than √3 times as long as broad, and a blob 1.5 x 2.2 widths kept two uncovered
+    corners (cow 0.8 layer 14: 93.6 %; rocker-arm 0.8 layer 98: 87.9 %)."""
+    return ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
 
 
 def _reversed(ring: Ring) -> Ring:
@@ -201,9 +207,8 @@ class _Builder:
         order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
         for k in order:
             ring, s = rings[k], cuts[k]
-            if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: its diameter)
-                centre, far = _dot_chord(ring)
-                arcs.append(centre[None] if n > 1 else np.vstack([centre, far]))
+            if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: its centre line)
+                arcs.append(_dot_centre(ring)[None] if n > 1 else loop_centre_line(ring.points))
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
