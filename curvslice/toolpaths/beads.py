@@ -180,25 +180,29 @@ def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray, 
 def _onto_layer(surface: trimesh.Trimesh, x: np.ndarray, j: np.ndarray, pieces: list[np.ndarray],
                 beads: list[np.ndarray], width: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Fitted passes moved onto the layer (their closest points: the nozzle runs on the surface, and the
-    samples are projected there anyway before printing, Eq. 3.3), each bead grown to reach from there
-    every surface sample ``x`` it owns (``j``: its pass point) and reached from where the fit put it.
+    samples are projected there anyway before printing, Eq. 3.3), the beads widened over the surface
+    samples ``x`` a pass point (``j``: the nearest of each) reached where the fit put it and no longer
+    does (:func:`fill_slivers`: short of the other passes' beads).
 
     The fit shifts a pass sideways in the tangent plane and lengthens its ends along their tangents;
     on a strongly curved layer (the tip of a part, folded through 80-110° within a few widths) that
     lifts the points a fifth of a width off the surface, over the middle of the fold, where every
     sample is nearer in 3D than from the fold's floor: projected back, the beads fell short of the
-    fold's sides (rocker-arm 0.8 layer 94: 99.0 → 89.8 % coverage). On a flat layer the points do
-    not move and no bead changes."""
+    fold's sides (rocker-arm 0.8 layer 94: 99.0 → 89.8 % coverage). Only points within ``MAX_SHIFT``
+    of the layer move -- the farthest a shift can lift them; farther ones are chords of links across
+    a bend, which would land on another part of the layer (they are put back when printed, as
+    before). On a flat layer no point moves and no bead changes."""
     pts, bead = np.vstack(pieces), np.concatenate(beads)
     tri = surface.triangles
     on, moved, _ = closest_points(pts, tri, cKDTree(tri.mean(axis=1)))
-    if not len(x) or not np.any(moved > 1e-9):
+    lifted = (moved > 1e-9) & (moved <= MAX_SHIFT * width)
+    if not len(x) or not lifted.any():
         return pieces, beads
-    reached = np.linalg.norm(x - pts[j], axis=1) <= 0.5 * bead[j]
-    need = _group_max(j[reached], np.linalg.norm(x[reached] - on[j[reached]], axis=1), len(pts))
-    bead = np.maximum(bead, np.minimum(2.0 * need, BEAD_RANGE[1] * width))
+    on[~lifted] = pts[~lifted]
     stop = np.cumsum([len(p) for p in pieces])[:-1]
-    return np.split(on, stop), np.split(bead, stop)
+    lost = (np.linalg.norm(x - pts[j], axis=1) <= 0.5 * bead[j]) & (np.linalg.norm(x - on[j], axis=1) > 0.5 * bead[j])
+    pieces = np.split(on, stop)
+    return pieces, fill_slivers(x[lost], pieces, beads, width)
 
 
 class _Owners:

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
+import trimesh
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (BEAD_MIN, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
-                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, OPEN_GAP, RIDGE_FLOOR,
+                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, MINOR_SHARE, OPEN_GAP, RIDGE_FLOOR,
                                            RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
 from curvslice.toolpaths.resampling import resample
 
@@ -116,13 +117,27 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     that add more overlap than coverage.)
     """
     v = np.asarray(vertices, np.float64)
+    share = MINOR_SHARE * _vertex_areas(v, faces).sum()  # of the layer
     if not pieces:
         open_v = np.ones(len(v), bool)
     else:
         widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
         dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(pieces, widths)])
-        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
-        open_v = gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
+        tree = cKDTree(dense[:, :3])
+
+        def is_open(points: np.ndarray) -> np.ndarray:
+            gap, nearest = tree.query(points, workers=-1)
+            return gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
+
+        open_v = is_open(v)
+        # the patch size is counted in vertices: the faces around open ones are split until their
+        # edges are half the shortest patch, or a tip a single long triangle wide (one open vertex)
+        # would never count, however much of it is open (cheburashka 0.8 layer 45: such spikes)
+        touch = open_v[faces].any(axis=1)
+        if touch.any():
+            v, faces = trimesh.remesh.subdivide_to_size(v, np.asarray(faces)[touch], 0.5 * GAP_PASS_LENGTH * width)
+            open_v = is_open(v)
+    area = _vertex_areas(v, faces)
     ring = np.roll(faces, -1, axis=1)
     inside = open_v[faces] & open_v[ring]
     code = np.unique(edge_keys(faces[inside], ring[inside], len(v)))
@@ -138,9 +153,19 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     for c in np.nonzero(sizes >= min_vertices)[0]:
         members = np.nonzero((label == c) & open_v)[0]
         chain = members[_longest_path(graph[members][:, members])]
-        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= GAP_PASS_LENGTH * width:
+        # the open patch is its sliver less the hairline along the beads: that long, or that large
+        if (np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() + (OPEN_GAP - 0.5) * width >= GAP_PASS_LENGTH * width
+                or area[members].sum() >= share):
             passes.append(v[chain])
     return passes
+
+
+def _vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """A third of the area of every triangle around each vertex (the vertices' shares of the surface)."""
+    f = np.asarray(faces, np.int64)
+    tri = np.asarray(vertices, np.float64)[f]
+    third = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) / 6.0
+    return np.bincount(f.ravel(), weights=np.repeat(third, 3), minlength=len(vertices))
 
 
 def join_touching(passes: list[np.ndarray], width: float) -> list[np.ndarray]:
