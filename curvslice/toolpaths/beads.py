@@ -200,6 +200,9 @@ def _onto_layer(surface: trimesh.Trimesh, x: np.ndarray, j: np.ndarray, pieces: 
         return pieces, beads
     on[~lifted] = pts[~lifted]
     stop = np.cumsum([len(p) for p in pieces])[:-1]
+    for a, b in zip(np.r_[0, stop], np.r_[stop, len(pts)]):  # a sliver's dot may fall onto one point
+        if np.ptp(on[a:b], axis=0).max() <= 1e-9:
+            on[a:b] = pts[a:b]
     lost = (np.linalg.norm(x - pts[j], axis=1) <= 0.5 * bead[j]) & (np.linalg.norm(x - on[j], axis=1) > 0.5 * bead[j])
     pieces = np.split(on, stop)
     return pieces, fill_slivers(x[lost], pieces, beads, width)

@@ -151,12 +151,26 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     sizes = np.bincount(label[open_v], minlength=n_comp)
     passes = []
     for c in np.nonzero(sizes >= min_vertices)[0]:
-        members = np.nonzero((label == c) & open_v)[0]
-        chain = members[_longest_path(graph[members][:, members])]
-        # the open patch is its sliver less the hairline along the beads: that long, or that large
-        if (np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() + (OPEN_GAP - 0.5) * width >= GAP_PASS_LENGTH * width
-                or area[members].sum() >= share):
-            passes.append(v[chain])
+        todo = np.nonzero((label == c) & open_v)[0]
+        for _ in range(BRANCH_ROUNDS):  # a branched patch: what one pass leaves open gets the next
+            n_patch, patch = connected_components(graph[todo][:, todo], directed=False)
+            found = []
+            for k in range(n_patch):
+                members = todo[patch == k]
+                if len(members) < min_vertices:
+                    continue
+                chain = members[_longest_path(graph[members][:, members])]
+                # the open patch is its sliver less the hairline along the beads: that long, or that large
+                if (np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() + (OPEN_GAP - 0.5) * width
+                        >= GAP_PASS_LENGTH * width or area[members].sum() >= share):
+                    found.append(v[chain])
+            if not found:
+                break
+            passes += found
+            dense = np.vstack([resample(p, DENSE_STEP * width) for p in found])
+            todo = todo[cKDTree(dense).query(v[todo], workers=-1)[0] > OPEN_GAP * width]  # a bead of one width
+            if len(todo) < min_vertices:
+                break
     return passes
 
 
