@@ -194,8 +194,16 @@ def _onto_layer(surface: trimesh.Trimesh, x: np.ndarray, j: np.ndarray, pieces: 
     before). On a flat layer no point moves and no bead changes."""
     pts, bead = np.vstack(pieces), np.concatenate(beads)
     tri = surface.triangles
-    on, moved, _ = closest_points(pts, tri, cKDTree(tri.mean(axis=1)))
-    lifted = (moved > 1e-9) & (moved <= MAX_SHIFT * width)
+    on, moved, face = closest_points(pts, tri, cKDTree(tri.mean(axis=1)))
+    # a point past the layer's edge (a bead the fit spills over it, a lengthened end) has its closest
+    # point on a boundary edge: it stays where the fit put it (the print pulls it onto the edge, as before)
+    edge = np.zeros((len(tri), 3), bool)  # edge (c, c+1) of each face on the boundary
+    border = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
+    edge[border // 3, border % 3] = True
+    with np.errstate(all="ignore"):
+        bary = trimesh.triangles.points_to_barycentric(tri[face], on)
+    past = np.any(edge[face] & (np.roll(bary, -2, axis=1) < 1e-6), axis=1)  # edge c is opposite corner c + 2
+    lifted = (moved > 1e-9) & (moved <= MAX_SHIFT * width) & ~past
     if not len(x) or not lifted.any():
         return pieces, beads
     on[~lifted] = pts[~lifted]

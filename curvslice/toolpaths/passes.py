@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import scipy.sparse as sp
-import trimesh
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
@@ -117,26 +116,13 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     that add more overlap than coverage.)
     """
     v = np.asarray(vertices, np.float64)
-    share = MINOR_SHARE * _vertex_areas(v, faces).sum()  # of the layer
     if not pieces:
         open_v = np.ones(len(v), bool)
     else:
         widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
         dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(pieces, widths)])
-        tree = cKDTree(dense[:, :3])
-
-        def is_open(points: np.ndarray) -> np.ndarray:
-            gap, nearest = tree.query(points, workers=-1)
-            return gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
-
-        open_v = is_open(v)
-        # the patch size is counted in vertices: the faces around open ones are split until their
-        # edges are half the shortest patch, or a tip a single long triangle wide (one open vertex)
-        # would never count, however much of it is open (cheburashka 0.8 layer 45: such spikes)
-        touch = open_v[faces].any(axis=1)
-        if touch.any():
-            v, faces = trimesh.remesh.subdivide_to_size(v, np.asarray(faces)[touch], 0.5 * GAP_PASS_LENGTH * width)
-            open_v = is_open(v)
+        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
+        open_v = gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
     area = _vertex_areas(v, faces)
     ring = np.roll(faces, -1, axis=1)
     inside = open_v[faces] & open_v[ring]
@@ -162,7 +148,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
                 chain = members[_longest_path(graph[members][:, members])]
                 # the open patch is its sliver less the hairline along the beads: that long, or that large
                 if (np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() + (OPEN_GAP - 0.5) * width
-                        >= GAP_PASS_LENGTH * width or area[members].sum() >= share):
+                        >= GAP_PASS_LENGTH * width or area[members].sum() >= MINOR_SHARE * area.sum()):
                     found.append(v[chain])
             if not found:
                 break
