@@ -29,7 +29,6 @@ SHARED_VOXEL = 2.5
 KNOWN_FAILURES = {
     "sharp-tips": "tool-paths: overlap 6.1 % (layers 4, 12)",
     "kitten": "tool-paths: overlap 6.1 % (layers 8, 18)",
-    "fertility": "tool-paths: coverage 88.5 % (layer 11), overlap 5.9 % (layer 30)",
     "rocker-arm": "tool-paths: coverage 90.3 % (layer 23)",
     "cheburashka": "tool-paths: overlap 5.7 % (layer 25)",
     "homer": "tool-paths: coverage 94.1 % (layer 17), overlap 10.8 % (layers 3, 4, 6, 11, 16, 18, 22)",

@@ -90,32 +90,10 @@ def _seam(ring: Ring, s: float, width: float) -> float:
     return float(at[straight[np.argmin(off)]])
 
 
-def _dot_centre(ring: Ring) -> np.ndarray:
-    """A dot's centre, where the links of its spiral reach it: its point nearest to its mean."""
-    return ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
-
-
-def _dot_pass(ring: Ring) -> np.ndarray:
-    """The one pass of a lone dot: of its diameter from :func:`_dot_centre` (its point nearest the mean)
-    to its point farthest from there, and its centre line between its farthest pair of points
-    (:func:`loop_centre_line`), the one its ring lies nearest to -- the bead that reaches the ring's
-    farthest point reaches the dot's edge the least far off (the ring lies ``FIRST_LEVEL`` widths
-    inside it, all round).
-
-    Either alone failed on some blob: the diameter starts on the narrow side of a dot, and ran across
-    a blob 1.5 x 2.2 widths (cow 0.8 layer 14: 93.6 %, rocker-arm 0.8 layer 98: 87.9 %); the centre
-    line of a near-square one ran along its sides where the diameter ran corner to corner between
-    the passes of its arms (homer 0.8 layer 40: 95.6 -> 94.2 %)."""
-    centre = _dot_centre(ring)
-    chords = [np.vstack([centre, ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]]),
-              loop_centre_line(ring.points)]
-
-    def reach(chord: np.ndarray) -> float:  # farthest ring point from the chord (points every 1/20 of it)
-        t = np.linspace(0.0, 1.0, 21)[:, None]
-        dense = np.vstack([a + t * (b - a) for a, b in zip(chord[:-1], chord[1:])])
-        return float(cKDTree(dense).query(ring.points)[0].max())
-
-    return min(chords, key=reach)
+def _dot_chord(ring: Ring) -> tuple[np.ndarray, np.ndarray]:
+    """A dot's diameter: its point nearest to its mean, and its point farthest from that one."""
+    centre = ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
+    return centre, ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]
 
 
 def _reversed(ring: Ring) -> Ring:
@@ -223,8 +201,9 @@ class _Builder:
         order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
         for k in order:
             ring, s = rings[k], cuts[k]
-            if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: one pass)
-                arcs.append(_dot_centre(ring)[None] if n > 1 else _dot_pass(ring))
+            if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: its diameter)
+                centre, far = _dot_chord(ring)
+                arcs.append(centre[None] if n > 1 else np.vstack([centre, far]))
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
