@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (BEAD_MIN, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
-                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, MINOR_SHARE, OPEN_GAP, RIDGE_FLOOR,
+                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, OPEN_GAP, RIDGE_FLOOR,
                                            RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
 from curvslice.toolpaths.resampling import resample
 
@@ -110,8 +110,8 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
 
     Vertices more than ``OPEN_GAP - 0.5`` widths beyond the edge of every bead (``widths``: each piece
     vertex's bead, default ``width``) form connected patches; each patch at least
-    ``min_vertices`` vertices and half a width long -- down to the tips of a layer that its outermost
-    contour cuts short -- gets one pass along its longest shortest path (two Dijkstra sweeps on its
+    ``min_vertices`` vertices whose sliver (the patch and the hairline along the beads) is half a width
+    long -- down to the tips of a layer that its outermost contour cuts short -- gets one pass along its longest shortest path (two Dijkstra sweeps on its
     mesh edges), which runs down the middle of a strip. (:func:`needed_pieces` then drops those
     that add more overlap than coverage.)
     """
@@ -123,7 +123,6 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(pieces, widths)])
         gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
         open_v = gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
-    area = _vertex_areas(v, faces)
     ring = np.roll(faces, -1, axis=1)
     inside = open_v[faces] & open_v[ring]
     code = np.unique(edge_keys(faces[inside], ring[inside], len(v)))
@@ -137,35 +136,13 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     sizes = np.bincount(label[open_v], minlength=n_comp)
     passes = []
     for c in np.nonzero(sizes >= min_vertices)[0]:
-        todo = np.nonzero((label == c) & open_v)[0]
-        for _ in range(BRANCH_ROUNDS):  # a branched patch: what one pass leaves open gets the next
-            n_patch, patch = connected_components(graph[todo][:, todo], directed=False)
-            found = []
-            for k in range(n_patch):
-                members = todo[patch == k]
-                if len(members) < min_vertices:
-                    continue
-                chain = members[_longest_path(graph[members][:, members])]
-                # the open patch is its sliver less the hairline along the beads: that long, or that large
-                if (np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() + (OPEN_GAP - 0.5) * width
-                        >= GAP_PASS_LENGTH * width or area[members].sum() >= MINOR_SHARE * area.sum()):
-                    found.append(v[chain])
-            if not found:
-                break
-            passes += found
-            dense = np.vstack([resample(p, DENSE_STEP * width) for p in found])
-            todo = todo[cKDTree(dense).query(v[todo], workers=-1)[0] > OPEN_GAP * width]  # a bead of one width
-            if len(todo) < min_vertices:
-                break
+        members = np.nonzero((label == c) & open_v)[0]
+        chain = members[_longest_path(graph[members][:, members])]
+        # the open patch is its sliver less the hairline along the beads: the sliver is GAP_PASS_LENGTH
+        # long when the patch is that less the hairline (the spikes of cheburashka 0.8 layer 45)
+        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() + (OPEN_GAP - 0.5) * width >= GAP_PASS_LENGTH * width:
+            passes.append(v[chain])
     return passes
-
-
-def _vertex_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """A third of the area of every triangle around each vertex (the vertices' shares of the surface)."""
-    f = np.asarray(faces, np.int64)
-    tri = np.asarray(vertices, np.float64)[f]
-    third = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1) / 6.0
-    return np.bincount(f.ravel(), weights=np.repeat(third, 3), minlength=len(vertices))
 
 
 def join_touching(passes: list[np.ndarray], width: float) -> list[np.ndarray]:
