@@ -644,24 +644,6 @@ def test_small_lone_ring_seam_lies_on_its_flank_not_at_a_tip(axes, monkeypatch):
     assert tip_overlap > overlap + 0.03
 
 
-@pytest.mark.parametrize("angle", [0.0, 30.0, 60.0, 90.0])
-def test_lone_dot_pass_runs_along_the_blob(angle):
-    """A blob 1.5 × 2.2 widths (cow 0.8 layer 14, rocker-arm 0.8 layer 98): one lone dot ring, one
-    pass. A single bead (at most 1.6 w) covers it only along its long axis; the chord from the ring's
-    point nearest its mean (on the narrow side) to the farthest point ran across it, and left two
-    corners open (measured 91-95 % against 99.6-100 %)."""
-    import shapely.affinity
-
-    width = 1.0
-    blob = shapely.affinity.rotate(shapely.affinity.scale(sg.Point(0, 0).buffer(1.0, 64), 0.75, 1.1), angle)
-    mesh = polygon_mesh(blob, 0.25)
-    result = layer_paths(mesh, width, min_bead=lambda p: np.full(len(p), 0.8 * width))
-    assert len(result.pieces) == 1
-    coverage, overlap = layer_cover(mesh, result.pieces[0], np.zeros(len(result.pieces[0]), int), width, seed=1,
-                                    bead=result.widths[0])
-    assert coverage >= 0.98 and overlap == 0.0
-
-
 def test_fitted_passes_lie_on_a_curved_layer():
     """A strip of a cylinder (radius 0.6 w, folded through 110°, like the tip of a part): fitting an
     off-centre pass shifts it sideways in the tangent plane, which lifted it off the layer (0.07 w

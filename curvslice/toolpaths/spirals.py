@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, OPEN_GAP,
-                                           SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS)
+from curvslice.toolpaths.constants import (CORNER_ANGLE, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, SPLICE_REACH,
+                                           SPLICE_SHIFT, SPLICE_SHIFTS)
 from curvslice.toolpaths.rings import Ring, lone_thin_loop, loop_centre_line, thin_rise
 
 
@@ -94,27 +94,6 @@ def _dot_chord(ring: Ring) -> tuple[np.ndarray, np.ndarray]:
     """A dot's diameter: its point nearest to its mean, and its point farthest from that one."""
     centre = ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
     return centre, ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]
-
-
-def _dot_pass(ring: Ring, chord: np.ndarray, width: float) -> np.ndarray:
-    """The one pass of a lone dot: its ``chord`` (:func:`_dot_chord`), or its centre line between its
-    farthest pair of points (:func:`loop_centre_line`) where the widest bead (``BEAD_RANGE``) reaches
-    the dot's edge from the centre line and not from the chord -- the ring lies ``FIRST_LEVEL`` widths
-    inside the edge, and a gap up to the hairline (``OPEN_GAP - 0.5``) does not count as open.
-
-    The chord starts on a dot's narrow side and runs across a blob less than √3 times as long as
-    broad: a blob 1.5 × 2.2 widths kept two corners open (cow 0.8 layer 14: 93.6 %, or a gap pass
-    beside it and 12.5 % overlap; rocker-arm 0.8 layer 98: 87.9 %); along its centre line 99.7 / 99.5 %.
-    Where neither reaches (a disc broader than the widest bead: the corpus needle, 1.95 w) the chord
-    stays: the centre line covered 0.1-1.8 % less there."""
-
-    def reach(line: np.ndarray) -> float:  # the ring's farthest point from the line
-        t = np.linspace(0.0, 1.0, 21)[:, None]
-        dense = np.vstack([a + t * (b - a) for a, b in zip(line[:-1], line[1:])])
-        return float(cKDTree(dense).query(ring.points)[0].max())
-    limit = (0.5 * BEAD_RANGE[1] - FIRST_LEVEL + OPEN_GAP - 0.5) * width
-    line = loop_centre_line(ring.points)
-    return line if reach(chord) > limit >= reach(line) else chord
 
 
 def _reversed(ring: Ring) -> Ring:
@@ -224,7 +203,7 @@ class _Builder:
             ring, s = rings[k], cuts[k]
             if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: its diameter)
                 centre, far = _dot_chord(ring)
-                arcs.append(centre[None] if n > 1 else _dot_pass(ring, np.vstack([centre, far]), self.w))
+                arcs.append(centre[None] if n > 1 else np.vstack([centre, far]))
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
