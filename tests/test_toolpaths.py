@@ -673,3 +673,25 @@ def test_trim_seams_balances_the_caps_lens_against_the_open_wedges():
     hairpin = np.vstack([np.c_[10 * s[::-1], np.zeros((50, 2))], np.c_[10 * s, np.full((50, 1), 0.6), np.zeros((50, 1))]])
     (same,), _ = trim_seams([hairpin], [np.full(len(hairpin), 1.0)], 1.0)
     assert same is hairpin
+
+
+def test_fitted_passes_lie_on_a_curved_layer():
+    """A strip of a cylinder (radius 0.6 w, folded through 110°, like the tip of a part): fitting an
+    off-centre pass shifts it sideways in the tangent plane, which lifted it off the layer (0.07 w
+    here, 0.2 w on rocker-arm 0.8 layer 94, where the beads then fell short of the fold's sides once
+    the samples were put back on it: 99.0 -> 89.8 %). The fitted points lie on the layer, and their
+    beads still cover the strip."""
+    width, r, span = 1.0, 0.6, np.radians(110.0)
+    th, y = np.meshgrid(np.linspace(-span / 2, span / 2, 23), np.linspace(-1.5, 1.5, 31))
+    v = np.c_[r * np.sin(th.ravel()), y.ravel(), -r * np.cos(th.ravel())]
+    i, j = np.meshgrid(np.arange(30), np.arange(22), indexing="ij")
+    a = (i * 23 + j).ravel()
+    mesh = trimesh.Trimesh(v, np.r_[np.c_[a, a + 1, a + 24], np.c_[a, a + 24, a + 23]], process=False)
+    if mesh.face_normals[:, 2].mean() < 0:
+        mesh.invert()
+    t = np.linspace(-1.0, 1.0, 21)
+    off = 0.5  # radians off the strip's middle
+    pieces, widths = fit_beads(mesh, [np.c_[np.full_like(t, r * np.sin(off)), t, np.full_like(t, -r * np.cos(off))]], width)
+    assert trimesh.proximity.closest_point(mesh, pieces[0])[1].max() <= 1e-6 * width
+    coverage, _ = layer_cover(mesh, pieces[0], np.zeros(len(pieces[0]), int), width, seed=1, bead=widths[0])
+    assert coverage >= 0.95

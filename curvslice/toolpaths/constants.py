@@ -138,9 +138,10 @@ BRANCH_MARGIN = 0.25
 #: is then open only when wider than 0.3 w: a narrower hairline would take a bead of at least
 #: ``BEAD_MIN`` (0.5 w) and overlap its neighbours by more than it fills.
 OPEN_GAP = 0.65
-#: A patch of open vertices gets a gap pass when it has at least this many vertices and its longest
-#: path is at least GAP_PASS_LENGTH widths: down to the tips of a layer that its outermost contour
-#: cuts short, not the single open vertices of a bead's ragged edge.
+#: A patch of open vertices gets a gap pass when it has at least this many vertices and its sliver --
+#: its longest path plus the hairline (``OPEN_GAP - 0.5``) the patch leaves out along the beads -- is at
+#: least GAP_PASS_LENGTH widths: down to the tips of a layer that its outermost contour cuts short,
+#: not the single open vertices of a bead's ragged edge.
 GAP_PASS_VERTICES = 3
 GAP_PASS_LENGTH = 0.5
 #: Passes whose ends lie closer than this many widths are joined into one

@@ -110,8 +110,8 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
 
     Vertices more than ``OPEN_GAP - 0.5`` widths beyond the edge of every bead (``widths``: each piece
     vertex's bead, default ``width``) form connected patches; each patch at least
-    ``min_vertices`` vertices and half a width long -- down to the tips of a layer that its outermost
-    contour cuts short -- gets one pass along its longest shortest path (two Dijkstra sweeps on its
+    ``min_vertices`` vertices whose sliver (the patch and the hairline along the beads) is half a width
+    long -- down to the tips of a layer that its outermost contour cuts short -- gets one pass along its longest shortest path (two Dijkstra sweeps on its
     mesh edges), which runs down the middle of a strip. (:func:`needed_pieces` then drops those
     that add more overlap than coverage.)
     """
@@ -138,7 +138,9 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     for c in np.nonzero(sizes >= min_vertices)[0]:
         members = np.nonzero((label == c) & open_v)[0]
         chain = members[_longest_path(graph[members][:, members])]
-        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() >= GAP_PASS_LENGTH * width:
+        # the open patch is its sliver less the hairline along the beads: the sliver is GAP_PASS_LENGTH
+        # long when the patch is that less the hairline (the spikes of cheburashka 0.8 layer 45)
+        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() + (OPEN_GAP - 0.5) * width >= GAP_PASS_LENGTH * width:
             passes.append(v[chain])
     return passes
 
