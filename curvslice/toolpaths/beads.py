@@ -33,23 +33,24 @@ def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarra
     ends, so it need not run where the pieces are made (a layer's pieces decide where the next layer
     starts, :func:`curvslice.toolpaths.plan.plan_toolpaths`)."""
     owners = _Owners(samples[0], [resample(p, FIT_STEP * width) for p in passes])
-    pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
+    projector = _Projector(surface)
+    pieces, widths = _fit_owned(surface, samples, owners, width, min_bead, projector)
     fill = gap_passes(vertices, faces, pieces, width, widths) if fill_gaps and len(faces) else []
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
         owners.add([resample(p, FIT_STEP * width) for p in fill])
-        pieces, widths = _fit_owned(surface, samples, owners, width, min_bead)
+        pieces, widths = _fit_owned(surface, samples, owners, width, min_bead, projector)
     is_gap = np.arange(len(pieces)) >= len(pieces) - len(fill)
     needed = needed_pieces(pieces, widths, width, samples[0], is_gap, take_over=True)
     if len(needed) < len(pieces):  # the others take over the strips of the redundant ones
         kept = owners.kept(needed)
-        refit = _fit_owned(surface, samples, kept, width, min_bead)
+        refit = _fit_owned(surface, samples, kept, width, min_bead, projector)
         label = piece_labels(pieces)
         orphans = samples[0][~np.isin(label[owners.j], needed)]
         if _faults(orphans, *refit, width) - _faults(orphans, pieces, widths, width) > MINOR_SHARE * len(samples[0]):
             # a refitted bead fell short of what it was to take over (a corner, a pass end)
             needed = needed_pieces(pieces, widths, width, samples[0], is_gap, take_over=False)
             kept = owners.kept(needed)
-            refit = _fit_owned(surface, samples, kept, width, min_bead)
+            refit = _fit_owned(surface, samples, kept, width, min_bead, projector)
         pieces, widths = refit
     pieces, widths = trim_seams(pieces, widths, width)
     return pieces, widths, int(is_gap[needed].sum())
@@ -171,16 +172,42 @@ def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
 
 
 def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray, np.ndarray], owners: _Owners, width: float,
-               min_bead: Callable[[np.ndarray], np.ndarray] | None) -> tuple[list[np.ndarray], list[np.ndarray]]:
+               min_bead: Callable[[np.ndarray], np.ndarray] | None, projector: _Projector | None = None
+               ) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """:func:`fit_beads` of the passes ``owners`` holds (already sampled every ``FIT_STEP``
     widths, with the samples' nearest points); unfitted, one width, without any surface."""
     if not owners.fine or surface.area <= 0:
         return owners.fine, [np.full(len(p), width) for p in owners.fine]
     pieces, beads = _fit_strips(samples[0], samples[1], owners.fine, width, min_bead, owners.j, samples[2])
-    return _onto_layer(surface, samples[0], owners.j, pieces, beads, width)
+    return _onto_layer(projector or _Projector(surface), samples[0], owners.j, pieces, beads, width)
 
 
-def _onto_layer(surface: trimesh.Trimesh, x: np.ndarray, j: np.ndarray, pieces: list[np.ndarray],
+class _Projector:
+    """Closest points on one layer (Eq. 3.3) for :func:`_onto_layer`, with what every call of a layer's
+    fits shares: the centroid KD-tree, the boundary edges, and the answers for points already asked
+    (a refit keeps most passes' points exactly as they were)."""
+
+    def __init__(self, surface: trimesh.Trimesh):
+        self.tri = surface.triangles
+        self.tree = cKDTree(self.tri.mean(axis=1))
+        self.edge = np.zeros((len(self.tri), 3), bool)  # edge (c, c+1) of each face on the boundary
+        border = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
+        self.edge[border // 3, border % 3] = True
+        self.known: dict[bytes, tuple[np.ndarray, float, int]] = {}
+
+    def __call__(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        keys = [row.tobytes() for row in np.ascontiguousarray(pts)]
+        ask = np.array([k not in self.known for k in keys], bool)
+        if ask.any():
+            on, moved, face = closest_points(pts[ask], self.tri, self.tree)
+            for k, a, b, c in zip(np.asarray(keys, object)[ask], on, moved, face):
+                self.known[k] = (a, b, c)
+        got = [self.known[k] for k in keys]
+        return (np.array([g[0] for g in got]).reshape(-1, 3), np.array([g[1] for g in got], float),
+                np.array([g[2] for g in got], np.int64))
+
+
+def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np.ndarray],
                 beads: list[np.ndarray], width: float) -> tuple[list[np.ndarray], list[np.ndarray]]:
     """Fitted passes moved onto the layer (their closest points: the nozzle runs on the surface, and the
     samples are projected there anyway before printing, Eq. 3.3), the beads widened over the surface
@@ -197,13 +224,10 @@ def _onto_layer(surface: trimesh.Trimesh, x: np.ndarray, j: np.ndarray, pieces: 
     a bend, which would land on another part of the layer (they are put back when printed, as
     before). On a flat layer no point moves and no bead changes."""
     pts, bead = np.vstack(pieces), np.concatenate(beads)
-    tri = surface.triangles
-    on, moved, face = closest_points(pts, tri, cKDTree(tri.mean(axis=1)))
+    tri, edge = layer.tri, layer.edge
+    on, moved, face = layer(pts)
     # a point past the layer's edge (a bead the fit spills over it, a lengthened end) has its closest
     # point on a boundary edge: it stays where the fit put it (the print pulls it onto the edge, as before)
-    edge = np.zeros((len(tri), 3), bool)  # edge (c, c+1) of each face on the boundary
-    border = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
-    edge[border // 3, border % 3] = True
     with np.errstate(all="ignore"):
         bary = trimesh.triangles.points_to_barycentric(tri[face], on)
     past = np.any(edge[face] & (np.roll(bary, -2, axis=1) < 1e-6), axis=1)  # edge c is opposite corner c + 2
