@@ -90,10 +90,24 @@ def _seam(ring: Ring, s: float, width: float) -> float:
     return float(at[straight[np.argmin(off)]])
 
 
-def _dot_chord(ring: Ring) -> tuple[np.ndarray, np.ndarray]:
-    """A dot's diameter: its point nearest to its mean, and its point farthest from that one."""
-    centre = ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
-    return centre, ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]
+def _dot_centre(ring: Ring) -> np.ndarray:
+    """A dot's centre, where the links of a spiral reach it: its point nearest to its mean."""
+    return ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
+
+
+def _dot_chord(ring: Ring) -> np.ndarray:
+    """A lone dot's pass: its long diameter, along the main axis of its points (mean weighted by
+    arclength) between their extremes, so its one bead runs along the blob and is fitted as wide as the
+    blob is narrow; a chord from a point of the ring to the farthest one ran across an elongated blob
+    (diagonally, a tie between its two ends) and left both ends to gap passes beside it (cow 0.8 layer
+    14, the corpus' arch layer 10)."""
+    closed = np.vstack([ring.points, ring.points[:1]])
+    seg = np.linalg.norm(np.diff(closed, axis=0), axis=1)
+    weight = 0.5 * (seg + np.roll(seg, 1))
+    centre = (weight[:, None] * ring.points).sum(axis=0) / max(weight.sum(), 1e-300)
+    axis = np.linalg.svd((ring.points - centre) * np.sqrt(weight)[:, None], full_matrices=False)[2][0]
+    t = (ring.points - centre) @ axis
+    return centre + np.outer([t.min(), t.max()], axis)
 
 
 def _reversed(ring: Ring) -> Ring:
@@ -202,8 +216,7 @@ class _Builder:
         for k in order:
             ring, s = rings[k], cuts[k]
             if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: its diameter)
-                centre, far = _dot_chord(ring)
-                arcs.append(centre[None] if n > 1 else np.vstack([centre, far]))
+                arcs.append(_dot_centre(ring)[None] if n > 1 else _dot_chord(ring))
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
