@@ -695,3 +695,37 @@ def test_fitted_passes_lie_on_a_curved_layer():
     assert trimesh.proximity.closest_point(mesh, pieces[0])[1].max() <= 1e-6 * width
     coverage, _ = layer_cover(mesh, pieces[0], np.zeros(len(pieces[0]), int), width, seed=1, bead=widths[0])
     assert coverage >= 0.95
+
+
+@pytest.mark.parametrize("angle", [0.0, 30.0, 90.0])
+def test_lone_dot_runs_along_its_blob_whatever_the_mesh_noise(angle):
+    """A blob about 2.4 x 1.7 widths (cow 0.8 layer 14, in widths) whose one contour is shorter than
+    ``DOT_RING``: its pass runs along the blob's long axis (to and fro: 1.7 w is wider than the widest
+    bead), fitted as wide as the blob is narrow, and covers it alone, with no gap pass beside it; moving the mesh's vertices by 1e-12 w
+    (below any geometric meaning) moves that pass by about as little. A chord from one point of the
+    contour to the farthest one ran diagonally and flipped between the blob's two ends as the vertices
+    moved by 4e-16 mm (the corpus' arch, layer 10: overlap 4.1-5.8 %)."""
+    import shapely.affinity
+
+    width = 1.0
+    blob = shapely.affinity.rotate(shapely.affinity.scale(sg.Point(0, 0).buffer(1.0, 64), 1.2, 0.85), angle)
+    mesh = polygon_mesh(blob, 0.1)
+    axis = np.array([np.cos(np.radians(angle)), np.sin(np.radians(angle)), 0.0])
+
+    def run(m):
+        result = layer_paths(m, width, start=np.array([-5.0, -1.0, 0.0]), min_bead=lambda p: np.full(len(p), 0.8 * width))
+        pos = np.vstack(result.pieces)
+        ids = np.repeat(np.arange(len(result.pieces)), [len(p) for p in result.pieces])
+        return result, layer_cover(m, pos, ids, width, seed=1, bead=np.concatenate(result.widths))
+
+    result, (coverage, overlap) = run(mesh)
+    assert result.rings == 1 and len(result.pieces) == 1
+    piece = result.pieces[0]
+    along = np.linalg.svd(piece - piece.mean(axis=0), full_matrices=False)[2][0]
+    assert abs(along @ axis) > 0.98  # along the long axis
+    assert coverage >= 0.96 and overlap <= 0.03
+    moved = mesh.copy()
+    moved.vertices = moved.vertices + np.random.default_rng(2).uniform(-1e-12, 1e-12, moved.vertices.shape)
+    again, _ = run(moved)
+    assert len(again.pieces) == 1 and again.pieces[0].shape == result.pieces[0].shape
+    assert np.abs(again.pieces[0] - result.pieces[0]).max() < 1e-6
