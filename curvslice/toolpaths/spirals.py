@@ -235,11 +235,8 @@ class _Builder:
             hosted.setdefault(0, []).extend(siblings)
         if len(rings) == 1 and not hosted and lone_thin_loop(rings[0], self.w):
             # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
-            # as the region (fit_beads), instead of two sides printed over each other; a round one is a
-            # blob, whose middle is no line between its farthest points (on a round ring any pair, a
-            # bent path with a gap pass at the tip it misses: cheburashka 0.8 layer 69, 6.2 % overlap)
-            # but the chords of a dot
-            return _dot_chord(rings[0], self.w, anchor) if rings[0].round else loop_centre_line(rings[0].points)
+            # as the region (fit_beads), instead of two sides printed over each other
+            return loop_centre_line(rings[0].points)
         arcs: list[np.ndarray] = []
         n = len(rings)
         order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
