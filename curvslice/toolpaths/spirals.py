@@ -15,8 +15,8 @@ import numpy as np
 import shapely
 from scipy.spatial import ConvexHull, cKDTree
 
-from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL, OPEN_GAP,
-                                           SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS)
+from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, DOT_RING, FIRST_LEVEL,
+                                           OPEN_GAP, SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS)
 from curvslice.toolpaths.rings import Ring, lone_thin_loop, loop_centre_line, thin_rise
 
 
@@ -99,21 +99,22 @@ def _dot_centre(ring: Ring) -> np.ndarray:
 def _dot_chord(ring: Ring, width: float, anchor: np.ndarray) -> np.ndarray:
     """A lone dot's pass: chords across its blob in the plane of its ring, parallel to the edge of the
     ring's convex hull across which the ring is narrowest (rotating calipers), each from end to end of
-    its share of the hull, walked to and fro from the end nearest to ``anchor`` (where the previous piece ended). The
-    blob's least breadth is twice its largest boundary distance (``Ring.top``, the radius of the
-    largest disc inside it): one chord of the widest bead (``BEAD_RANGE``) covers it while that breadth
-    leaves at most one hairline (``OPEN_GAP − ½`` widths, which never counts as open) beyond the bead,
-    else ``⌈(2·top − hairline) / widest⌉`` chords evenly spaced across the ring, each fitted as wide as
-    its share. The bead spans the blob's least breadth and runs along the rest. A round blob's one chord
-    (its breadth the same within a hairline either side whichever way) is a diameter, from its point
-    nearest its mean to the farthest one: where the blob is as broad as the widest bead, which way the
-    bead's sides leave their slivers (along flats or across corners) is decided by corners the ring no
-    longer shows (homer 0.8 layer 62, an octagon 1.6 w across: 94.9 % coverage along its flats, 97.4 %
-    across its corners; the corpus' needle the other way round), and this chord passed both. A chord from one point
-    of the ring to the farthest one ran across an elongated blob (diagonally, a tie between its two
-    ends) and left both ends to gap passes beside it (cow 0.8 layer 14: 10.1 % overlap; the corpus'
-    arch layer 10 flipped between 4.1 and 5.8 % as its vertices moved by 4e-16 mm); one chord across a
-    disc 1.85 w broad left its sides open (the corpus' needle at 1.5 mm, layer 20: 94.9 % coverage)."""
+    its share of the hull, walked to and fro from the end nearest to ``anchor`` (where the previous
+    piece ended). The blob's least breadth is twice its largest boundary distance (``Ring.top``, the
+    radius of the largest disc inside it): one chord of the widest bead (``BEAD_RANGE``) covers it while
+    that breadth leaves at most one hairline (``OPEN_GAP − ½`` widths, never open) beyond the bead, else
+    ``⌈(2·top − hairline) / widest⌉`` chords evenly spaced across the ring, each fitted as wide as its
+    share: the bead spans the blob's least breadth and runs along the rest. A chord from one point of
+    the ring to the farthest one ran across an elongated blob (diagonally, a tie between its two ends)
+    and left both ends to gap passes beside it (cow 0.8 layer 14: 10.1 % overlap; the corpus' arch
+    layer 10 flipped between 4.1 and 5.8 % as its vertices moved by 4e-16 mm); one chord across a disc
+    1.85 w broad left its sides open (the corpus' needle at 1.5 mm, layer 20: 94.9 % coverage).
+
+    A round blob's one chord (its breadth the same within a hairline either side whichever way) stays
+    that diameter, from its point nearest its mean to the farthest one: as broad as the widest bead,
+    which way its slivers fall (along flats or across corners) is decided by corners the ring no longer
+    shows (homer 0.8 layer 62, an octagon 1.6 w across: 94.9 % coverage along its flats, 97.4 % across
+    its corners; the corpus' needle the other way round), and the diameter passed both."""
     centre = ring.points.mean(axis=0)
     plane = np.linalg.svd(ring.points - centre, full_matrices=False)[2][:2]
     flat = (ring.points - centre) @ plane.T
@@ -126,7 +127,8 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray) -> np.ndarray:
     k = int(np.argmin(breadth))
     top = ring.top if np.isfinite(ring.top) else ring.level + 0.5 * breadth[k]  # (a spliced ring: its own breadth)
     chords = max(int(np.ceil((2.0 * top - (OPEN_GAP - 0.5) * width) / (BEAD_RANGE[1] * width))), 1)
-    if chords == 1 and np.linalg.norm(hull[:, None] - hull[None], axis=2).max() - breadth[k] < 2.0 * (OPEN_GAP - 0.5) * width:
+    diameter = np.linalg.norm(hull[:, None] - hull[None], axis=2).max()
+    if chords == 1 and diameter - breadth[k] < 2.0 * (OPEN_GAP - 0.5) * width:
         # a round blob, its breadth the same within the hairline either side whichever way: a diameter
         centre = _dot_centre(ring)
         return np.vstack([centre, ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]])
@@ -136,7 +138,8 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray) -> np.ndarray:
     share = (hi - lo) / chords
     spans = []
     for c in range(chords):  # each chord spans its share of the hull from end to end
-        band = outline.intersection(shapely.box(along.min() - width, lo + c * share, along.max() + width, lo + (c + 1) * share))
+        band = outline.intersection(shapely.box(along.min() - width, lo + c * share,
+                                                along.max() + width, lo + (c + 1) * share))
         span = np.array(band.bounds)[[0, 2]] if not band.is_empty else np.full(2, along.mean())
         spans.append(np.c_[span, np.full(2, lo + (c + 0.5) * share)])
     walks = []
