@@ -4,9 +4,10 @@ conservation, :func:`curvslice.flow.filament_length`)."""
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from curvslice.flow import filament_length
-from curvslice.toolpaths.constants import CORNER_ANGLE
+from curvslice.toolpaths.constants import CORNER_ANGLE, DENSE_STEP, SAME_PASS_BEADS
 from curvslice.toolpaths.stacked import run_labels, run_offsets
 
 
@@ -39,7 +40,7 @@ def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0, turn_
 
 
 def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.ndarray, width,
-                      filament_diameter: float) -> np.ndarray:
+                      filament_diameter: float, layer: np.ndarray | None = None) -> np.ndarray:
     """Filament length per segment (0 at each piece's first sample): the thickness averaged on it, the
     bead width (a number or one per sample) too, raised where a sample's width would be laid by neither
     of its segments; a bead is never narrower than it is high.
@@ -47,10 +48,12 @@ def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.
     A segment is laid at one width, so a sample's width is what its wider segment lays there. At the mean
     of its ends, a sample wider than both its neighbours -- the end of a pass whose fit widened it to reach
     a tip (:func:`~curvslice.toolpaths.beads.fit_beads`), a bead widened over a sliver
-    (:func:`~curvslice.toolpaths.beads.fill_slivers`) -- was laid narrower than fitted and the surface it
-    was widened for stayed open (kitten 0.8 mm at path width 1.5 w, layer 82: 94.7 % coverage; small
+    (:func:`~curvslice.toolpaths.beads.fill_slivers`) -- was laid narrower than fitted, and the surface it
+    was widened for stayed open (kitten 0.8 mm at path width 1.5 w, layer 82: 94.7 % coverage; the small
     loops of fertility and cheburashka 0.8). Such a sample's width is laid by its one segment whose other
-    end is wider (less material beyond what the fit asked for): an end's only segment."""
+    end is wider (less material beyond what the fit asked for; a pass end: its only segment), short of the
+    beads of the other passes as the means lay them (another piece of its ``layer``, or the same one more
+    than ``SAME_PASS_BEADS`` beads along it), as :func:`~curvslice.toolpaths.beads.fill_slivers` widens."""
     pos = np.asarray(positions, np.float64)
     seg = np.r_[0.0, np.linalg.norm(np.diff(pos, axis=0), axis=1)]
     h = np.r_[thickness[0], 0.5 * (thickness[1:] + thickness[:-1])]
@@ -59,15 +62,47 @@ def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.
     # segment k ends at sample k (none at a piece's first sample): laid at the mean of its two ends
     b = np.where(first, 0.0, np.r_[w[0], 0.5 * (w[1:] + w[:-1])])
     after = np.r_[b[1:], 0.0]  # the segment leaving each sample (0: none)
-    short = (w > b) & (w > after)
-    prev_w = np.where(first, -np.inf, np.r_[-np.inf, w[:-1]])
-    next_w = np.where(np.r_[first[1:], True], -np.inf, np.r_[w[1:], -np.inf])
-    back = short & (prev_w >= next_w)  # raise the segment ending here (towards the wider neighbour)
-    ahead = short & ~back
-    b = b.copy()
-    b[back] = np.maximum(b[back], w[back])
-    k = np.nonzero(ahead)[0] + 1
-    b[k] = np.maximum(b[k], w[k - 1])
+    short = np.nonzero((w > b) & (w > after))[0]
+    if len(short):
+        prev_w = np.where(first, -np.inf, np.r_[-np.inf, w[:-1]])[short]
+        next_w = np.where(np.r_[first[1:], True], -np.inf, np.r_[w[1:], -np.inf])[short]
+        target = np.minimum(w[short], _room(pos, seg, first, b, short, w[short], layer))
+        k = np.where(prev_w >= next_w, short, short + 1)  # the segment towards the wider neighbour
+        ok = (target > b[np.minimum(k, len(b) - 1)]) & (k < len(b)) & ((k == short) | ~np.r_[first, True][k])
+        b = b.copy()
+        np.maximum.at(b, k[ok], target[ok])
     e = filament_length(seg, np.maximum(b, h), h, filament_diameter)
     e[first] = 0.0
     return e
+
+
+def _room(pos: np.ndarray, seg: np.ndarray, first: np.ndarray, laid: np.ndarray, at: np.ndarray, want: np.ndarray,
+          layer: np.ndarray | None) -> np.ndarray:
+    """Twice the room (at most ``want``, the widths asked for) from each sample ``at`` to the nearest edge
+    of another pass's bead as ``laid`` per segment (another piece of the same ``layer``, or the same piece
+    more than ``SAME_PASS_BEADS`` of that bead along it): the widest bead laid there without covering
+    another pass. Segments are cut into parts of at most half the median bead, each found by its middle."""
+    inner = ~first
+    part = 0.5 * float(np.median(laid[inner])) if inner.any() else 1.0
+    arclen = np.cumsum(np.where(inner, seg, 0.0))  # along each piece, from its first sample
+    n = np.where(inner, np.maximum(np.ceil(seg / part), 1), 0).astype(np.int64)
+    k = run_labels(n)  # the segment of each part (ends at sample k)
+    t0, t1 = run_offsets(n) / n[k], (run_offsets(n) + 1) / n[k]
+    a = pos[k - 1] + t0[:, None] * (pos[k] - pos[k - 1])
+    ab = (t1 - t0)[:, None] * (pos[k] - pos[k - 1])
+    piece = np.cumsum(first) - 1
+    lay = np.zeros(len(pos), np.int64) if layer is None else np.asarray(layer)
+    reach = 0.5 * (float(want.max()) + float(laid.max())) + 0.5 * float(np.max(np.linalg.norm(ab, axis=1)))
+    apart = 2.0 * reach * lay  # a fourth coordinate: other layers lie out of reach
+    pairs = cKDTree(np.c_[pos[at], apart[at]]).sparse_distance_matrix(cKDTree(np.c_[a + 0.5 * ab, apart[k]]), reach,
+                                                                      output_type="coo_matrix")
+    i, j = pairs.row, pairs.col
+    s, d = at[i], k[j]
+    along = np.abs(arclen[d - 1] + 0.5 * (t0[j] + t1[j]) * seg[d] - arclen[s])
+    other = (piece[d] != piece[s]) | (along > SAME_PASS_BEADS * laid[d])
+    i, j, s, d = i[other], j[other], s[other], d[other]
+    u = np.clip(np.einsum("ij,ij->i", pos[s] - a[j], ab[j]) / np.maximum(np.einsum("ij,ij->i", ab[j], ab[j]), 1e-300), 0.0, 1.0)
+    gap = np.linalg.norm(pos[s] - a[j] - u[:, None] * ab[j], axis=1) - 0.5 * laid[d]
+    room = np.full(len(at), np.inf)
+    np.minimum.at(room, i, gap)
+    return 2.0 * np.maximum(room, 0.0)
