@@ -78,8 +78,8 @@ def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.
 
 def _room(pos: np.ndarray, seg: np.ndarray, first: np.ndarray, laid: np.ndarray, at: np.ndarray, want: np.ndarray,
           layer: np.ndarray | None) -> np.ndarray:
-    """Twice the room (at most ``want``, the widths asked for) from each sample ``at`` to the nearest edge
-    of another pass's bead as ``laid`` per segment (another piece of the same ``layer``, or the same piece
+    """Twice the room from each sample ``at`` (asking for widths ``want``) to the nearest edge of another
+    pass's bead as ``laid`` per segment (another piece of the same ``layer``, or the same piece
     more than ``SAME_PASS_BEADS`` of that bead along it): the widest bead laid there without covering
     another pass. Segments are cut into parts of at most half the median bead, each found by its middle."""
     inner = ~first
@@ -87,6 +87,8 @@ def _room(pos: np.ndarray, seg: np.ndarray, first: np.ndarray, laid: np.ndarray,
     arclen = np.cumsum(np.where(inner, seg, 0.0))  # along each piece, from its first sample
     n = np.where(inner, np.maximum(np.ceil(seg / part), 1), 0).astype(np.int64)
     k = run_labels(n)  # the segment of each part (ends at sample k)
+    if not len(k):
+        return np.full(len(at), np.inf)
     t0, t1 = run_offsets(n) / n[k], (run_offsets(n) + 1) / n[k]
     a = pos[k - 1] + t0[:, None] * (pos[k] - pos[k - 1])
     ab = (t1 - t0)[:, None] * (pos[k] - pos[k - 1])
