@@ -100,11 +100,10 @@ def _room(pos: np.ndarray, seg: np.ndarray, first: np.ndarray, laid: np.ndarray,
                                                                       output_type="coo_matrix")
     i, j = pairs.row, pairs.col
     s, d = at[i], k[j]
-    along = np.abs(arclen[d - 1] + 0.5 * (t0[j] + t1[j]) * seg[d] - arclen[s])
-    other = (piece[d] != piece[s]) | (along > SAME_PASS_BEADS * laid[d])
-    i, j, s, d = i[other], j[other], s[other], d[other]
     u = np.clip(np.einsum("ij,ij->i", pos[s] - a[j], ab[j]) / np.maximum(np.einsum("ij,ij->i", ab[j], ab[j]), 1e-300), 0.0, 1.0)
-    gap = np.linalg.norm(pos[s] - a[j] - u[:, None] * ab[j], axis=1) - 0.5 * laid[d]
+    along = np.abs(arclen[d - 1] + (t0[j] + u * (t1[j] - t0[j])) * seg[d] - arclen[s])  # to the part's closest point
+    other = (piece[d] != piece[s]) | (along > SAME_PASS_BEADS * laid[d])
+    gap = np.linalg.norm(pos[s] - a[j] - u[:, None] * ab[j], axis=1)[other] - 0.5 * laid[d[other]]
     room = np.full(len(at), np.inf)
-    np.minimum.at(room, i, gap)
+    np.minimum.at(room, i[other], gap)
     return 2.0 * np.maximum(room, 0.0)
