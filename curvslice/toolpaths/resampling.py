@@ -92,18 +92,20 @@ def _room(pos: np.ndarray, seg: np.ndarray, first: np.ndarray, laid: np.ndarray,
     t0, t1 = run_offsets(n) / n[k], (run_offsets(n) + 1) / n[k]
     a = pos[k - 1] + t0[:, None] * (pos[k] - pos[k - 1])
     ab = (t1 - t0)[:, None] * (pos[k] - pos[k - 1])
+    length2 = np.einsum("ij,ij->i", ab, ab)
     piece = np.cumsum(first) - 1
     lay = np.zeros(len(pos), np.int64) if layer is None else np.asarray(layer)
-    reach = 0.5 * (float(want.max()) + float(laid.max())) + 0.5 * float(np.max(np.linalg.norm(ab, axis=1)))
+    reach = 0.5 * (float(want.max()) + float(laid.max())) + 0.5 * float(np.sqrt(length2.max()))
     apart = 2.0 * reach * lay  # a fourth coordinate: other layers lie out of reach
     pairs = cKDTree(np.c_[pos[at], apart[at]]).sparse_distance_matrix(cKDTree(np.c_[a + 0.5 * ab, apart[k]]), reach,
                                                                       output_type="coo_matrix")
     i, j = pairs.row, pairs.col
     s, d = at[i], k[j]
-    u = np.clip(np.einsum("ij,ij->i", pos[s] - a[j], ab[j]) / np.maximum(np.einsum("ij,ij->i", ab[j], ab[j]), 1e-300), 0.0, 1.0)
+    rel, abj = pos[s] - a[j], ab[j]
+    u = np.clip(np.einsum("ij,ij->i", rel, abj) / np.maximum(length2[j], 1e-300), 0.0, 1.0)
     along = np.abs(arclen[d - 1] + (t0[j] + u * (t1[j] - t0[j])) * seg[d] - arclen[s])  # to the part's closest point
     other = (piece[d] != piece[s]) | (along > SAME_PASS_BEADS * laid[d])
-    gap = np.linalg.norm(pos[s] - a[j] - u[:, None] * ab[j], axis=1)[other] - 0.5 * laid[d[other]]
+    gap = np.linalg.norm(rel[other] - u[other, None] * abj[other], axis=1) - 0.5 * laid[d[other]]
     room = np.full(len(at), np.inf)
     np.minimum.at(room, i[other], gap)
     return 2.0 * np.maximum(room, 0.0)
