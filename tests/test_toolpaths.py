@@ -428,21 +428,52 @@ def test_uncross_joins_crossing_links_the_other_way():
 
 
 def test_verifier_recovers_bead_width_from_extrusion():
-    """Extrusion made from per-sample bead widths; the verifier's inverse of the stadium section
-    returns each segment's mean width (a path's first sample: its first segment's)."""
+    """Extrusion made from per-sample bead widths; the verifier's inverse of the stadium section returns
+    each segment's width (a path's first sample: its first segment's). Every sample's width, with no other
+    pass beside it, is laid by one of its segments at least (re-checked sample by sample), and a segment is laid wider than the
+    mean of its ends only for a sample wider than both its neighbours, as wide as that sample and towards
+    its wider neighbour (a pass end: its only segment)."""
     from curvslice.verify.toolpaths import bead_widths
 
     rng = np.random.default_rng(3)
-    pos = np.cumsum(rng.uniform(0.2, 1.0, (12, 3)), axis=0)
-    path = np.array([0] * 5 + [1] * 7)
-    thickness = rng.uniform(0.2, 0.4, 12)
-    bead = rng.uniform(0.5, 1.5, 12)
-    e = extrusion_amounts(pos, path, thickness, bead, 1.75)
+    pos = np.c_[np.cumsum(rng.uniform(0.5, 1.0, 40)), rng.uniform(0, 0.2, (40, 2))]
+    path = np.repeat([0, 1, 2, 3], [5, 7, 2, 26])
+    thickness = rng.uniform(0.2, 0.4, 40)
+    bead = rng.uniform(0.5, 1.5, 40)
+    e = extrusion_amounts(pos, path, thickness, bead, 1.75, path)  # each pass on a layer of its own
     got = bead_widths(pos, path, e, thickness, 1.75)
-    expect = 0.5 * (bead[1:] + bead[:-1])
-    printed = path[1:] == path[:-1]
-    assert np.allclose(got[1:][printed], expect[printed])
-    assert got[0] == pytest.approx(expect[0]) and got[5] == pytest.approx(expect[5])
+    printed = np.nonzero(path[1:] == path[:-1])[0] + 1  # segment k ends at sample k
+    mean = 0.5 * (bead[printed] + bead[printed - 1])
+    assert np.all(got[printed] >= mean - 1e-9)
+    for k, g, m in zip(printed, got[printed], mean):
+        if g > m + 1e-9:  # raised for one of its two ends, a sample no neighbour's segment lays
+            assert any(np.isclose(g, bead[i]) and all(bead[i] > bead[n] for n in (i - 1, i + 1)
+                                                     if 0 <= n < len(bead) and path[n] == path[i]) for i in (k - 1, k))
+    for i in range(len(bead)):
+        laid = [got[k] for k in (i, i + 1) if k in printed and (k == i or path[k] == path[i])]
+        assert max(laid) >= bead[i] - 1e-9
+    assert got[0] == pytest.approx(got[1]) and got[5] == pytest.approx(got[6])
+
+
+def test_a_wide_pass_end_is_laid_short_of_its_neighbours_bead():
+    """Two passes 1 mm apart with 0.8 mm beads; the first ends in a 1.6 mm cap (its fit reaching a tip).
+    Laid at the mean of its ends (1.2 mm) the cap is narrower than fitted; at its width it would cover
+    the neighbour's bead, whose edge lies 0.6 mm from the end: it is laid as wide as the room to that bead,
+    1.2 mm here, and at its full 1.6 mm when the neighbour lies on another layer."""
+    from curvslice.verify.toolpaths import bead_widths
+
+    x = np.arange(6.0)
+    pos = np.r_[np.c_[x, np.zeros(6), np.zeros(6)], np.c_[x, np.ones(6), np.zeros(6)]]
+    path = np.repeat([0, 1], 6)
+    thickness = np.full(12, 0.3)
+    bead = np.full(12, 0.8)
+    bead[5] = 1.6
+    got = {}
+    for name, layer in (("same", np.zeros(12, int)), ("apart", np.repeat([1, 2], 6))):
+        got[name] = bead_widths(pos, path, extrusion_amounts(pos, path, thickness, bead, 1.75, layer), thickness, 1.75)
+    assert got["same"][5] == pytest.approx(2 * (1.0 - 0.4))
+    assert got["apart"][5] == pytest.approx(1.6)
+    assert np.allclose(np.delete(got["same"], [0, 5, 6]), 0.8) and np.allclose(np.delete(got["apart"], [0, 5, 6]), 0.8)
 
 
 def _egg_crate(flat: bool = False) -> trimesh.Trimesh:

@@ -25,7 +25,9 @@ Per layer (thesis §3.3.2 "surface covering", §3.5.1, Fig. 3.9), one module per
 5. :mod:`~curvslice.toolpaths.resampling`: re-sampling at ``step`` (1 mm in the thesis, §3.5.2),
    keeping sharp corners, bends and the bead width profile;
 6. extrusion per segment from length × bead width × local layer thickness (volume
-   conservation, :func:`curvslice.flow.filament_length`).
+   conservation, :func:`curvslice.flow.filament_length`): a segment lays the mean of its ends'
+   beads, or the width of an end wider than both its neighbours, short of the other passes' beads
+   (:func:`extrusion_amounts`).
 
 :mod:`~curvslice.toolpaths.plan` runs these per layer (:func:`layer_paths`) and over all layers
 with orientations and thickness (:func:`plan_toolpaths`; each layer's spiral starts nearest the

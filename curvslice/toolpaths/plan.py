@@ -559,7 +559,8 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     cat = {k: (np.concatenate(v) if v else np.zeros((0, 3) if k in ("positions", "normals") else 0)) for k, v in out.items()}
     path = cat["path"].astype(np.int32)
     bead = np.maximum(cat["bead"], cat["thickness"]) if len(path) else np.zeros(0)
-    extrusion = extrusion_amounts(cat["positions"], path, cat["thickness"], bead, settings.filament_diameter) if len(path) else np.zeros(0)
+    extrusion = (extrusion_amounts(cat["positions"], path, cat["thickness"], bead, settings.filament_diameter, cat["layer"])
+                 if len(path) else np.zeros(0))
     return Toolpaths(cat["positions"], cat["normals"], cat["layer"].astype(np.int32), path, extrusion,
                      cat["thickness"], np.full(len(path), settings.feed), bead, per_layer, seconds)
 
