@@ -760,3 +760,45 @@ def test_lone_dot_runs_along_its_blob_whatever_the_mesh_noise(angle):
     again, _ = run(moved)
     assert len(again.pieces) == 1 and again.pieces[0].shape == result.pieces[0].shape
     assert np.abs(again.pieces[0] - result.pieces[0]).max() < 1e-6
+
+
+def test_root_spiral_is_cut_where_no_ring_turns_a_corner(monkeypatch):
+    """A stadium 26 x 10 widths started from beyond its tip (the ``seam`` rule's fixed point on the
+    platform): the inner rings' points nearest the start lie at their tips, which turn more than 30°
+    over a width either side (kitten 1.6 layer 24, cut there: 5.0 % overlap). The cut line moves
+    along the innermost ring until every ring it crosses runs straight there, re-measured here on
+    each ring with shapely; the rings cut where the start alone would put them do meet a corner."""
+    from curvslice.toolpaths import spirals
+
+    width = 1.0
+    mesh = polygon_mesh(sg.LineString([(-8, 0), (8, 0)]).buffer(5.0, 64), 0.4)
+    start = np.array([-30.0, 0.0, 0.0])
+    cuts = []
+    real = spirals._Builder.cut_line
+
+    def spy(self, chain, anchor, spliced=False):
+        points = real(self, chain, anchor, spliced)
+        cuts.append([] if spliced else [(self.tree.rings[i].points, p) for i, p in zip(chain, points)])
+        return points
+
+    def sharpest(cut) -> float:
+        turns = []
+        for ring, p in cut:
+            line = sg.LinearRing(ring[:, :2])
+            if line.length < 4.0 * width:  # a dot
+                continue
+            s = line.project(sg.Point(p[:2]))
+            a, b, c = (np.array(line.interpolate((s + d) % line.length).coords[0]) for d in (-width, 0.0, width))
+            u, v = b - a, c - b
+            turns.append(np.degrees(np.arccos(np.clip(u @ v / np.linalg.norm(u) / np.linalg.norm(v), -1, 1))))
+        return max(turns)
+
+    monkeypatch.setattr(spirals._Builder, "cut_line", spy)
+    result = layer_paths(mesh, width, start=start)
+    assert len(result.pieces) == 1 and len(cuts[0]) >= 3
+    assert sharpest(cuts[0]) < 30.0
+    assert np.all(np.abs(result.pieces[0][[0, -1], 0]) <= 8.0)  # the spiral's ends on the flank
+    cuts.clear()
+    monkeypatch.setattr(spirals._Builder, "_straight_anchor", lambda self, chain, anchor: anchor)
+    layer_paths(mesh, width, start=start)
+    assert sharpest(cuts[0]) > 30.0

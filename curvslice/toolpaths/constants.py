@@ -95,6 +95,11 @@ THIN_LOOP = 0.3
 #: (README "Choices the thesis leaves open", "Spiral cut").
 CUT_RANGE = (2.0, 3.0)
 CUT_SHARE = 6.0
+#: A root spiral's cut line (:meth:`~curvslice.toolpaths.spirals._Builder.cut_line`) where the one
+#: nearest to the start meets a ring at a corner: the innermost ring's points this many widths apart
+#: are tried as its start (a quarter of the narrowest cut, ``CUT_RANGE[0]``: the cut line's points on
+#: the rings move about as far, a fraction of the straight stretch the corners leave between them).
+CUT_STEP = 0.5
 #: A child spiral is spliced into its host ring at the host point nearest to it or, where that
 #: leaves no room (a cut away from the walk's ends and two cuts from other splices), at shifts of
 #: ±SPLICE_SHIFT, ±2·SPLICE_SHIFT, ... up to ±SPLICE_SHIFTS·SPLICE_SHIFT widths (±4 w): half-width
