@@ -389,7 +389,8 @@ def test_fine_decomposition_avoids_a_cut_the_extruder_cannot_print():
 def test_verify_counts_a_ceiling_within_one_layer_over_the_platform_as_printed_on_it(tmp_path):
     """A 20 x 20 x 10 block with a 10 x 10 pocket 1.5 mm deep under it: the pocket's ceiling faces straight
     down 1.5 mm over the platform (100 mm²). Printed in 2 mm layers it lies in the first layer, on the
-    platform; in 1 mm layers it hangs."""
+    platform; in 1 mm layers it hangs, and verify passes when parts.json reports that remainder and
+    fails when the part claims less (the acceptance: "risky area 0 ... or the remainder reported")."""
     import json
 
     from curvslice.decompose.parts import part_pose, plane_frame
@@ -400,14 +401,16 @@ def test_verify_counts_a_ceiling_within_one_layer_over_the_platform_as_printed_o
     mesh.export(tmp_path / "part_00.stl")
     mesh.export(tmp_path / "solid.stl")
     up = Plane(np.array([0.0, 0.0, 1.0]), 0.0)
-    for layer, risky in ((2.0, 0.0), (1.0, 100.0)):
+    for layer, risky, claim in ((2.0, 0.0, 0.0), (1.0, 100.0, 100.0), (1.0, 100.0, 0.0), (1.0, 100.0, 60.0)):
         part = {"file": "part_00.stl", "sequence": 0, "parent": None,
                 "base_plane": {"normal": up.normal.tolist(), "offset_mm": 0.0}, "build_direction": up.normal.tolist(),
-                "base_centre_mm": [0.0, 0.0, 0.0], "risky_area_mm2": risky, "risky_underside_mm2": risky,
+                "base_centre_mm": [0.0, 0.0, 0.0], "risky_area_mm2": claim, "risky_underside_mm2": claim,
                 "T_P_E": part_pose(up, np.zeros(3), plane_frame(up.normal, np.zeros(3))).tolist()}
         (tmp_path / "parts.json").write_text(json.dumps({"alpha_max_deg": 45.0, "first_layer_mm": 0.5, "underside_mm": 5.0,
                                                          "platform_layer_mm": layer, "root_direction": [0, 0, 1],
                                                          "parts": [part]}))
         by_name = {c.name: c for c in checks(tmp_path)}
-        assert by_name["risky area per part"].passed  # the reported area is the recomputed one
-        assert by_name["every part support-free"].passed == (risky == 0.0)
+        assert by_name["risky area per part"].passed == (claim == risky)  # recomputed from the mesh
+        free = by_name["every part support-free or remainder reported"]
+        assert free.passed == (claim == risky)  # a remainder passes when reported, fails when understated
+        assert ("part 0: 100.0" in free.value) == (risky > 0)  # the remainder is listed per part
