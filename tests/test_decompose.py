@@ -242,6 +242,36 @@ def test_printed_parts_are_planar_along_their_directions_and_verify_catches_a_ti
     assert json.loads((tmp_path / "report.json").read_text())["stages"] == ["layers", "toolpaths"]
 
 
+def test_a_thin_top_oblique_to_the_voxel_grid_is_contoured_again_on_a_finer_grid():
+    """A fin 12 mm broad at the platform narrowing to 0.5 mm at 9 mm, turned 45° to the voxel grid: at a
+    2 mm voxel its top sections are narrower than two voxels, and the voxel contour trimmed by the solid
+    keeps only the stars of the grid vertices inside them (the bunny's part 6 top: 6.7 of 13.5 mm²).
+    `print_part` contours such a part on a grid half the voxel, keeping the layer height; every layer's
+    area then matches manifold3d's exact slice of the part, and the tool-path stage covers each."""
+    import shapely
+    import trimesh
+
+    from curvslice.decompose.printing import SECTION_KEPT, planar_layers, print_part, section_kept
+    from curvslice.toolpaths import ToolpathSettings
+    from curvslice.verify.toolpaths import layer_cover
+
+    fin = trimesh.creation.extrude_polygon(shapely.geometry.Polygon([(-6, 0), (6, 0), (0.25, 9), (-0.25, 9)]), 16)
+    fin.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+    fin.apply_translation([0, 8, 0])
+    fin.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 4, [0, 0, 1]))
+    assert section_kept(fin, [m for m in planar_layers(fin, 2.0, 2.0) if len(m.faces)]) < SECTION_KEPT
+    pp = print_part(fin, np.eye(4), 0, 2.0, 2.0, ToolpathSettings(path_width=2.5))
+    assert pp.contour_mm == 1.0
+    solid = m3.Manifold(m3.Mesh(vert_properties=np.asarray(fin.vertices, np.float32), tri_verts=np.asarray(fin.faces, np.uint32)))
+    tp = pp.toolpaths
+    for k, layer in enumerate(pp.layers, start=1):
+        z = float(layer.vertices[:, 2].mean())
+        assert z == pytest.approx(2.0 * k, abs=1e-6) or k == len(pp.layers)  # the layer height is kept
+        assert layer.area == pytest.approx(solid.slice(z).area(), rel=0.05)
+        at = tp.layer == k
+        assert layer_cover(layer, tp.positions[at], tp.path[at], 2.5, bead=tp.bead[at])[0] >= 0.95
+
+
 def test_platform_clearance_of_a_cylinder_and_a_cone_extruder():
     """A cylinder of radius r from a to b above the tip dips r·sinθ - a·cosθ below it at tilt θ; a cone
     with its apex on the tip never dips before θ reaches 90° - its half-angle."""
@@ -389,7 +419,8 @@ def test_fine_decomposition_avoids_a_cut_the_extruder_cannot_print():
 def test_verify_counts_a_ceiling_within_one_layer_over_the_platform_as_printed_on_it(tmp_path):
     """A 20 x 20 x 10 block with a 10 x 10 pocket 1.5 mm deep under it: the pocket's ceiling faces straight
     down 1.5 mm over the platform (100 mm²). Printed in 2 mm layers it lies in the first layer, on the
-    platform; in 1 mm layers it hangs."""
+    platform; in 1 mm layers it hangs, and verify passes when parts.json reports that remainder and
+    fails when the part claims less (the acceptance: "risky area 0 ... or the remainder reported")."""
     import json
 
     from curvslice.decompose.parts import part_pose, plane_frame
@@ -400,14 +431,16 @@ def test_verify_counts_a_ceiling_within_one_layer_over_the_platform_as_printed_o
     mesh.export(tmp_path / "part_00.stl")
     mesh.export(tmp_path / "solid.stl")
     up = Plane(np.array([0.0, 0.0, 1.0]), 0.0)
-    for layer, risky in ((2.0, 0.0), (1.0, 100.0)):
+    for layer, risky, claim in ((2.0, 0.0, 0.0), (1.0, 100.0, 100.0), (1.0, 100.0, 0.0), (1.0, 100.0, 60.0)):
         part = {"file": "part_00.stl", "sequence": 0, "parent": None,
                 "base_plane": {"normal": up.normal.tolist(), "offset_mm": 0.0}, "build_direction": up.normal.tolist(),
-                "base_centre_mm": [0.0, 0.0, 0.0], "risky_area_mm2": risky, "risky_underside_mm2": risky,
+                "base_centre_mm": [0.0, 0.0, 0.0], "risky_area_mm2": claim, "risky_underside_mm2": claim,
                 "T_P_E": part_pose(up, np.zeros(3), plane_frame(up.normal, np.zeros(3))).tolist()}
         (tmp_path / "parts.json").write_text(json.dumps({"alpha_max_deg": 45.0, "first_layer_mm": 0.5, "underside_mm": 5.0,
                                                          "platform_layer_mm": layer, "root_direction": [0, 0, 1],
                                                          "parts": [part]}))
         by_name = {c.name: c for c in checks(tmp_path)}
-        assert by_name["risky area per part"].passed  # the reported area is the recomputed one
-        assert by_name["every part support-free"].passed == (risky == 0.0)
+        assert by_name["risky area per part"].passed == (claim == risky)  # recomputed from the mesh
+        free = by_name["every part support-free or remainder reported"]
+        assert free.passed == (claim == risky)  # a remainder passes when reported, fails when understated
+        assert ("part 0: 100.0" in free.value) == (risky > 0)  # the remainder is listed per part

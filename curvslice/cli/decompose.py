@@ -91,6 +91,11 @@ def run(args: argparse.Namespace) -> int:
                 report["robot"] = plan_robot(tmp, args.robot, quiet=False, parts=args.robot_parts)
     print(f"{report['parts']} parts in {report['timings_s']['total']:.1f} s; risky area per part (mm²): "
           + ", ".join(f"{a:.1f}" for a in report["risky_area_mm2"]))
+    left = [k for k in range(report["parts"]) if k not in report["support_free_parts"]]
+    print(f"support-free (≤ {report['support_free_mm2']:g} mm²): {report['parts'] - len(left)} of {report['parts']} parts"
+          + ("; remainder (mm², on the underside + elsewhere): " + ", ".join(
+              f"part {k} {report['risky_area_mm2'][k]:.1f} ({report['risky_underside_mm2'][k]:.1f} + "
+              f"{report['risky_area_mm2'][k] - report['risky_underside_mm2'][k]:.1f})" for k in left) if left else ""))
     print(f"Constraint I violations: {report['constraint_one_violations'] or 'none'}; "
           f"Constraint II violations: {report['constraint_two_violations'] or 'none'}")
     if args.print_parts:

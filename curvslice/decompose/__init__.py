@@ -23,8 +23,8 @@ from curvslice.decompose.fine_tuning import (Settings, coarse_parts, fine_decomp
                                               replay)
 from curvslice.decompose.parts import Plane, cross_section, part_pose, plane_frame, to_manifold, to_trimesh
 from curvslice.decompose.preview import plot_parts
-from curvslice.decompose.risky import (FIRST_LAYER_MM, PLATFORM_CONTACT_MM, UNDERSIDE_MM, lowest_plane,
-                                      platform_layer_mask, risky_faces, underside_mask)
+from curvslice.decompose.risky import (FIRST_LAYER_MM, PLATFORM_CONTACT_MM, SUPPORT_FREE_MM2, UNDERSIDE_MM,
+                                      lowest_plane, platform_layer_mask, risky_faces, underside_mask)
 from curvslice.decompose.sequence import breadth_first_order, extruder_aware_order, plan_sequence
 from curvslice.decompose.shape_analysis import coarse_decomposition
 
@@ -159,6 +159,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
             "risky_area_mm2": p.risky_area,
             "risky_area_analysis_mm2": p.risky_area_analysis,
             "risky_underside_mm2": p.risky_underside,
+            "support_free": p.risky_area <= SUPPORT_FREE_MM2,
             "T_P_E": part_pose(p.base, p.base_centre, root_frame).tolist(),
         })
     one, two = dec.constraint_one_violations(), dec.constraint_two_violations()
@@ -178,6 +179,8 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
         "risky_underside_mm2": [q["risky_underside_mm2"] for q in parts],
         "underside_mm": UNDERSIDE_MM,
         "platform_layer_mm": dec.layer_height,
+        "support_free_mm2": SUPPORT_FREE_MM2,
+        "support_free_parts": [q["sequence"] for q in parts if q["support_free"]],
         "constraint_one_violations": [list(v) for v in one],
         "constraint_two_violations": two,
         "volume_model_mm3": dec.model_volume,
@@ -188,7 +191,7 @@ def write_decomposition(dec: Decomposition, folder: Path, source: str, model: tr
                                                    "alpha_max_deg": report["alpha_max_deg"],
                                                    "first_layer_mm": FIRST_LAYER_MM, "underside_mm": UNDERSIDE_MM,
                                                    "platform_layer_mm": dec.layer_height,
-                                                   "parts": parts}, indent=1))
+                                                   "support_free_mm2": SUPPORT_FREE_MM2, "parts": parts}, indent=1))
     (folder / "report.json").write_text(json.dumps(report, indent=1))
     plot_parts(dec.parts, folder / "parts.png", f"{Path(source).stem}: {len(parts)} parts, sequence 0..{len(parts) - 1}")
     return report

@@ -40,6 +40,10 @@ PLATFORM_CONTACT_MM = FIRST_LAYER_MM
 #: recess ceiling 2-3 mm over its lowest point, facing straight down) and nothing can stand below
 #: it -- no part under the root, no face-up plane (Constraint II) beneath it.
 UNDERSIDE_MM = 5.0
+#: A part whose risky area is at most this (mm²) counts as support-free; above it, its risky area is
+#: the remainder reported per part (issue 17's acceptance: "risky area 0 beyond its base plane, or
+#: the remainder reported per part"), which `curvslice verify` re-computes from the part's mesh.
+SUPPORT_FREE_MM2 = 1.0
 
 
 def risky_mask(normals: np.ndarray, direction: np.ndarray, alpha_max: float) -> np.ndarray:

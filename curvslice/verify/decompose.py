@@ -6,7 +6,10 @@
   ``first_layer_mm`` of parts.json, and faces within one layer over the platform, where the first
   layer is deposited on it, ``platform_layer_mm``) recomputed from its mesh equals the reported
   one, so does its share on the model's underside (faces reaching no higher than ``underside_mm``
-  over the lowest point of all parts), and whether every part is support-free;
+  over the lowest point of all parts), and whether every part is support-free (risky area ≤
+  :data:`SUPPORT_FREE_MM2`) or its remainder is reported (the acceptance of issue 17: "risky area 0
+  beyond its base plane, or the remainder reported per part"): a part whose report claims less
+  than its recomputed area fails, and the check lists the remainder per part;
 - Constraint I: the base faces (faces of a part on its base plane) of two parts never cross on a
   stretch of the planes' common line — found by cutting each base face's triangles with the other
   plane (trimesh), not by the polygon code that made the decomposition; sections that merely end
@@ -120,13 +123,20 @@ def checks(outdir: Path) -> list[Check] | None:
             mismatch.append(k)
     results.append(Check(STAGE, "risky area per part", not mismatch, ", ".join(f"{a:.1f}" for a in risky) + " mm²",
                          f"reported differs for parts {mismatch}" if mismatch else "recomputed = reported"))
-    worst = int(np.argmax(risky))
-    split = (f"; faces within {platform_layer:g} mm of the platform stand on it; on the underside "
-             f"(≤ {underside:g} mm over the platform): "
-             + ", ".join(f"{u:.1f}" for u in under) + " mm², elsewhere max "
-             + f"{max(a - u for a, u in zip(risky, under)):.1f} mm²") if under else ""
-    results.append(Check(STAGE, "every part support-free", max(risky) <= SUPPORT_FREE_MM2,
-                         f"max {max(risky):.1f} mm²", f"part {worst} (≤ {SUPPORT_FREE_MM2} mm² counts as free){split}"))
+    # support-free, or the remainder reported: a part may hang only as much as parts.json says
+    claimed = [float(p.get("risky_area_mm2", 0.0)) for p in parts]
+    understated = [k for k, (a, r) in enumerate(zip(risky, claimed))
+                   if a > SUPPORT_FREE_MM2 and r < a - 1e-3 * max(1.0, a)]
+    remainder = [k for k, a in enumerate(risky) if a > SUPPORT_FREE_MM2]
+    where = [f"part {k}: {risky[k]:.1f}" + (f" ({under[k]:.1f} underside, {risky[k] - under[k]:.1f} elsewhere)"
+                                            if under else "") for k in remainder]
+    value = (f"{len(risky) - len(remainder)} of {len(risky)} free; remainder (mm²) " + "; ".join(where)
+             if remainder else f"all {len(risky)} free")
+    floor = (f"; faces within {platform_layer:g} mm of the platform stand on it, underside = "
+             f"≤ {underside:g} mm over it") if under else ""
+    results.append(Check(STAGE, "every part support-free or remainder reported", not understated, value,
+                         (f"parts {understated} report less than recomputed" if understated else "remainder = report")
+                         + f" (≤ {SUPPORT_FREE_MM2} mm² counts as free){floor}"))
     planes = [(np.asarray(p["base_plane"]["normal"], float), float(p["base_plane"]["offset_mm"])) for p in parts]
     crossing = []
     for i in range(len(parts)):
