@@ -122,10 +122,12 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray) -> np.ndarray:
     """A lone dot's pass: chords across its blob in the plane of its ring, parallel to the edge of the
     ring's convex hull across which the ring is narrowest (rotating calipers), each from end to end of
     its share of the hull, walked to and fro from the end nearest to ``anchor`` (where the previous
-    piece ended). The blob's least breadth is twice its largest boundary distance (``Ring.top``, the
-    radius of the largest disc inside it): one chord of the widest bead (``BEAD_RANGE``) covers it while
-    that breadth leaves at most one hairline (``OPEN_GAP − ½`` widths, never open) beyond the bead, else
-    ``⌈(2·top − hairline) / widest⌉`` chords evenly spaced across the ring, each fitted as wide as its
+    piece ended). The blob's least breadth is twice the reach of its beads: from the ring up to the
+    top of the distance inside it (``Ring.top − level``), plus outwards to the layer's edge (an outermost
+    ring) or to the bead of the ring outside it (a dot nested in a spiral, ½ width; counting the whole
+    top there laid 3 chords over a blob one bead fills, cheburashka 2.5 mm layer 2: 14.1 % overlap): one
+    chord of the widest bead (``BEAD_RANGE``) covers it while that breadth leaves at most one hairline
+    (``OPEN_GAP − ½`` widths, never open) beyond the bead, else ``⌈(2·reach − hairline) / widest⌉`` chords evenly spaced across the ring, each fitted as wide as its
     share: the bead spans the blob's least breadth and runs along the rest. A chord from one point of
     the ring to the farthest one ran across an elongated blob (diagonally, a tie between its two ends)
     and left both ends to gap passes beside it (cow 0.8 layer 14: 10.1 % overlap; the corpus' arch
@@ -147,8 +149,11 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray) -> np.ndarray:
     across = hull @ normal.T  # (hull point, direction)
     breadth = np.ptp(across, axis=0)
     k = int(np.argmin(breadth))
-    top = ring.top if np.isfinite(ring.top) else ring.level + 0.5 * breadth[k]  # (a spliced ring: its own breadth)
-    chords = max(int(np.ceil((2.0 * top - (OPEN_GAP - 0.5) * width) / (BEAD_RANGE[1] * width))), 1)
+    # half the breadth the dot's beads must fill: from its ring inwards to the top, and outwards to the
+    # layer's edge (an outermost ring, FIRST_LEVEL widths) or to the bead of the ring outside it (½ width)
+    rise = ring.top - ring.level if np.isfinite(ring.top) else 0.5 * breadth[k]  # (a spliced ring: its own breadth)
+    half = rise + min(ring.level, 0.5 * width)
+    chords = max(int(np.ceil((2.0 * half - (OPEN_GAP - 0.5) * width) / (BEAD_RANGE[1] * width))), 1)
     diameter = np.linalg.norm(hull[:, None] - hull[None], axis=2).max()
     if chords == 1 and diameter - breadth[k] < 2.0 * (OPEN_GAP - 0.5) * width:
         # a round blob, its breadth the same within the hairline either side whichever way: a diameter
