@@ -142,8 +142,9 @@ def _search(
     lo, hi = cell.limits(robot)
     circ = circular_joints(lo, hi)
     limit = max_rotations or 4 * cell.rotations
+    pinned = m > 1 and ends[0] is not None and ends[1] is not None
     p = start_rotations(cell.rotations)
-    if ends[0] is not None and ends[1] is not None and 2 * p <= limit:
+    if pinned and 2 * p <= limit:
         p *= 2  # between two pinned nodes (a stretch the coarse path's θ interpolation failed on) p rarely connects
     finest = p  # the largest p the doubling below reaches
     while finest * 2 <= limit:
@@ -167,7 +168,6 @@ def _search(
     best, whole = None, False
     edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # rung i -> its edges to rung i+1
     cone_edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # the same inside reach_cone
-    pinned = m > 1 and ends[0] is not None and ends[1] is not None
     while True:
         redo = np.flatnonzero((solved_at < level) & ~fixed & ~dead)  # refined rungs: IK at the finer θ samples
         if len(redo):
@@ -322,7 +322,7 @@ def plan_motion(
     rungs (edges Eq. 4.4 over the summed Δt); between two kept rungs of one motion on one IK branch
     the waypoints take that branch at θ interpolated in time (one IK each), checked for ξ (Eq. 4.4)
     and collisions; a stretch where that fails (or the coarse path breaks) gets the full ladder search
-    between its two kept nodes. ``None``: the full ladder on every rung. ``memo``
+    between its two kept nodes (from 2p, inside their :func:`reach_cone` first). ``None``: the full ladder on every rung. ``memo``
     (:class:`curvslice.ladder.RungMemo`): IK nodes shared by the searches (same nodes, solved once).
     """
     positions = np.asarray(positions, float)
