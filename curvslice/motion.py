@@ -15,8 +15,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from curvslice.kinematics import Robot
-from curvslice.ladder import (TWO_PI, RungMemo, blocked_rungs, circular_joints, deviate_axes, held_frames, hopeless_rungs,
-                              joint_steps, ladder, ladder_at, shortest_path)
+from curvslice.ladder import (TWO_PI, LadderPath, RungMemo, blocked_rungs, circular_joints, deviate_axes, held_frames,
+                              hopeless_rungs, joint_steps, ladder, ladder_at, shortest_path)
 from curvslice.workcell import Workcell, rotation_samples
 
 
@@ -133,14 +133,19 @@ def _search(
 ) -> _Found:
     """The ladder search of :func:`plan_motion` on every rung (p doubling on the breaks' rungs,
     lazy collision checks). ``ends``: joints the first / last rung is pinned to (a single node,
-    known collision-free), e.g. where a stretch meets an already planned path. ``memo``: IK nodes
-    of rungs asked before (:class:`curvslice.ladder.RungMemo`)."""
+    known collision-free), e.g. where a stretch meets an already planned path; with both pinned the
+    ladder starts at twice the usual p, and the nodes outside :func:`reach_cone` are left out first
+    (the whole ladder only where that breaks). ``memo``: IK nodes of rungs asked before
+    (:class:`curvslice.ladder.RungMemo`)."""
     rungs = ladder if memo is None else (lambda *a: memo.ladder(*a))
     m = len(positions)
     lo, hi = cell.limits(robot)
     circ = circular_joints(lo, hi)
-    p = start_rotations(cell.rotations)
     limit = max_rotations or 4 * cell.rotations
+    pinned = m > 1 and ends[0] is not None and ends[1] is not None
+    p = start_rotations(cell.rotations)
+    if pinned and 2 * p <= limit:
+        p *= 2  # between two pinned nodes (a stretch the coarse path's θ interpolation failed on) p rarely connects
     finest = p  # the largest p the doubling below reaches
     while finest * 2 <= limit:
         finest *= 2
@@ -162,6 +167,7 @@ def _search(
     asked_total = 0
     best, whole = None, False
     edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # rung i -> its edges to rung i+1
+    cone_edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}  # the same inside reach_cone
     while True:
         redo = np.flatnonzero((solved_at < level) & ~fixed & ~dead)  # refined rungs: IK at the finer θ samples
         if len(redo):
@@ -193,9 +199,19 @@ def _search(
             return ans > 0
 
         branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
-        path, _, _ = shortest_path(q, valid & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
-                                   None if collides is None else node_ok, branch, edges,
-                                   None if memo is None else memo.edges)
+
+        def run(usable: np.ndarray, cache: dict) -> LadderPath:
+            return shortest_path(q, usable, dt, cell.max_joint_speed, circ, cost, weights,
+                                 None if collides is None else node_ok, branch, cache,
+                                 None if memo is None else memo.edges)[0]
+
+        path = None
+        if pinned:  # first the nodes a motion from one pinned end to the other can pass (exact if it exists)
+            path = run(valid & (known >= 0) & reach_cone(q, ends, dt, cell.max_joint_speed, circ), cone_edges)
+            if (path.node < 0).any() or path.segment[-1] != 0:
+                path = None
+        if path is None:
+            path = run(valid & (known >= 0), edges)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
         # (a dead rung's skip and the split after it are no break a finer ladder could mend)
         rows = np.flatnonzero(path.node >= 0)
@@ -215,7 +231,7 @@ def _search(
         elif not whole and (level < p).any():
             whole = True  # refining the breaks' rungs alone did not help: refine every rung at this p
             level[:] = p
-            edges = {}
+            edges, cone_edges = {}, {}
             continue
         else:
             break  # a denser ladder did not help: the breaks come from the path itself (§4.3.1)
@@ -235,14 +251,29 @@ def _search(
         q, solved, known = finer.reshape(m, 8 * p, 6), finer_ok.reshape(m, 8 * p), finer_known.reshape(m, 8 * p)
         level[refine], whole = p, False
         # edges between two rungs that keep their nodes carry over, renumbered (node s·8+b -> 2s·8+b)
-        edges = {i: (2 * ia - ia % 8, 2 * ib - ib % 8, w) for i, (ia, ib, w) in edges.items()
-                 if not (refine[i] or refine[i + 1])}
+        edges, cone_edges = ({i: (2 * ia - ia % 8, 2 * ib - ib % 8, w) for i, (ia, ib, w) in cache.items()
+                              if not (refine[i] or refine[i + 1])} for cache in (edges, cone_edges))
     _, p, q, valid, path = best
     rows = np.flatnonzero(path.node >= 0)
     chosen = np.full((m, 6), np.nan)
     chosen[rows] = q[rows, path.node[rows]]
     theta = -np.pi + TWO_PI * (path.node // 8) / (q.shape[1] // 8)  # rotation_samples of the held p
     return _Found(path.node, path.segment, chosen, theta, path.node % 8, p, valid.sum(axis=1), asked_total)
+
+
+def reach_cone(q: np.ndarray, ends: tuple[np.ndarray, np.ndarray], dt: np.ndarray, max_speed: float,
+               circular: np.ndarray) -> np.ndarray:
+    """(m, K) bool: the nodes of a ladder q (m, K, 6) (NaN: absent) that a motion from the pinned
+    first node ``ends[0]`` to the pinned last node ``ends[1]`` with every step ‖Δq‖∞ ≤ ξΔt (Eq. 4.4)
+    could pass: within ξ·(time since the first rung) of the one and ξ·(time to the last rung) of the
+    other (triangle inequality, circular joints the short way round; a hair wider for rounding)."""
+    elapsed = np.r_[0.0, np.cumsum(dt)]
+    ok = np.ones(q.shape[:2], bool)
+    for pin, span in zip(ends, (elapsed, elapsed[-1] - elapsed)):
+        d = np.abs(q - pin)
+        d[..., circular] = np.minimum(d[..., circular], TWO_PI - d[..., circular])
+        ok &= d.max(axis=-1) <= max_speed * span[:, None] * (1 + 1e-9) + 1e-9
+    return ok
 
 
 #: waypoints per coarse rung inside a tool-path in the coarse-to-fine search (:func:`plan_motion`)
@@ -291,28 +322,51 @@ def plan_motion(
     rungs (edges Eq. 4.4 over the summed Δt); between two kept rungs of one motion on one IK branch
     the waypoints take that branch at θ interpolated in time (one IK each), checked for ξ (Eq. 4.4)
     and collisions; a stretch where that fails (or the coarse path breaks) gets the full ladder search
-    between its two kept nodes. ``None``: the full ladder on every rung. ``memo``
+    between its two kept nodes (from 2p, inside their :func:`reach_cone` first). ``None``: the full ladder on every rung. ``memo``
     (:class:`curvslice.ladder.RungMemo`): IK nodes shared by the searches (same nodes, solved once).
     """
     positions = np.asarray(positions, float)
     normals = np.asarray(normals, float)
-    m = len(positions)
-    lo, hi = cell.limits(robot)
-    circ = circular_joints(lo, hi)
+    search = _searcher(robot, cell, positions, normals, collides, cost, weights, max_rotations, dense, memo)
+    chosen, link, solutions, p, checks = _links(robot, cell, positions, normals, np.asarray(dt), keep, collides, search)
+    return _motion(robot, cell, chosen, link, solutions, p, checks, np.asarray(dt), cost, weights)
+
+
+def _searcher(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray,
+              collides: Callable[[np.ndarray], np.ndarray] | None, cost: str, weights: np.ndarray | None,
+              max_rotations: int | None, dense: np.ndarray | None, memo: RungMemo | None) -> Callable[..., _Found]:
+    """``search(rows, dt, ends)``: :func:`_search` on the waypoints ``rows`` (a slice or indices)."""
 
     def search(r: slice | np.ndarray, step: np.ndarray, ends=(None, None)) -> _Found:
         return _search(robot, cell, positions[r], normals[r], step, collides, cost, weights, max_rotations,
                        None if dense is None else dense[r], ends, memo)
 
+    return search
+
+
+def _links(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, dt: np.ndarray,
+           keep: np.ndarray | None, collides: Callable[[np.ndarray], np.ndarray] | None,
+           search: Callable[..., _Found]) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """The search of :func:`plan_motion` before unwinding: joints (m, 6) (NaN: skipped), link (m,)
+    (row j continues row j-1's motion), IK solutions per laddered rung (-1 elsewhere), p, checks."""
+    m = len(positions)
     if keep is None or m < 3 or np.all(keep):
-        found = search(slice(None), np.asarray(dt))
-        chosen, solutions, p, checks = found.q, found.solutions, found.rotations, found.checks
+        found = search(slice(None), dt)
         link = np.r_[False, (found.segment[1:] == found.segment[:-1]) & (found.segment[1:] >= 0)]
-    else:
-        chosen, link, solutions, p, checks = _coarse_to_fine(robot, cell, positions, normals, np.asarray(dt),
-                                                             np.asarray(keep, bool), collides, circ, search)
+        return found.q, link, found.solutions, found.rotations, found.checks
+    lo, hi = cell.limits(robot)
+    return _coarse_to_fine(robot, cell, positions, normals, dt, np.asarray(keep, bool), collides,
+                           circular_joints(lo, hi), search)
+
+
+def _motion(robot: Robot, cell: Workcell, chosen: np.ndarray, link: np.ndarray, solutions: np.ndarray, p: int,
+            checks: int, dt: np.ndarray, cost: str, weights: np.ndarray | None) -> Motion:
+    """The :class:`Motion` of a searched path (:func:`_links`): segments, unwinding, timestamps, cost."""
+    m = len(chosen)
+    lo, hi = cell.limits(robot)
+    circ = circular_joints(lo, hi)
     present = ~np.isnan(chosen[:, 0])
-    link &= present & np.r_[False, present[:-1]]
+    link = link & present & np.r_[False, present[:-1]]
     starts = present & ~link
     segment = np.where(present, np.cumsum(starts) - 1, -1)
     rows = np.flatnonzero(present)
@@ -373,10 +427,23 @@ def _coarse_to_fine(
         done = adjacent.copy()
         done[fill[filled]] = True
         stretches += [(int(x), int(y), True, True) for x, y in zip(a[~done], b[~done])]
+    p_more, asked = _stretches(stretches, idx, dt, search, chosen, link, solutions)
+    return chosen, link, solutions, max(p, p_more), checks + asked
+
+
+def _stretches(stretches: list[tuple[int, int, bool, bool]], idx: np.ndarray, dt: np.ndarray,
+               search: Callable[..., _Found], chosen: np.ndarray, link: np.ndarray,
+               solutions: np.ndarray, widen: int = WIDEN) -> tuple[int, int]:
+    """The full ladder search on each stretch (rows a..b, ends pinned to ``chosen`` where asked and
+    present), written into ``chosen``, ``link`` and ``solutions``. A stretch that splits is searched
+    again with its ends ``WIDEN_STEP`` rows of ``idx`` (sorted, with 0 and m-1) further out, at most
+    ``widen`` times while that removes splits. Returns the largest p used and the checks made."""
+    m = len(chosen)
+    p, checks = 0, 0
     for x, y, pin_a, pin_b in sorted(stretches):
         best = None
-        for widen in range(WIDEN + 1):  # a stretch that splits: again with ends WIDEN_STEP kept rungs further out
-            if widen:
+        for wider in range(widen + 1):  # a stretch that splits: again with ends WIDEN_STEP kept rungs further out
+            if wider:
                 i, j = np.searchsorted(idx, x) - WIDEN_STEP, np.searchsorted(idx, y) + WIDEN_STEP
                 x, y = int(idx[max(i, 0)]), int(idx[min(j, len(idx) - 1)])
                 pin_a, pin_b = pin_a and i > 0, pin_b and j < len(idx) - 1
@@ -400,7 +467,7 @@ def _coarse_to_fine(
         seg = found.segment
         link[x + 1:y + 1] = (seg[1:] == seg[:-1]) & (seg[1:] >= 0)
         p = max(p, found.rotations)
-    return chosen, link, solutions, p, checks
+    return p, checks
 
 
 def _fill(
@@ -547,6 +614,23 @@ class Remembered:
         return out.astype(bool)
 
 
+#: rows either side of a deviated waypoint searched again with its new axis (:func:`plan_layer`)
+DEVIATION_MARGIN = 2 * COARSE_STEP
+
+
+def deviation_windows(changed: np.ndarray, margin: int) -> list[tuple[int, int, bool, bool]]:
+    """Stretches (a, b, pin a, pin b) of rows to search again around the ``changed`` (m,) rows: each
+    run of them widened by ``margin`` rows either side (clipped to the layer, windows that meet
+    merged), both ends pinned (to the path already found there; an end without one stays free)."""
+    m = len(changed)
+    rows = np.flatnonzero(changed)
+    if not len(rows):
+        return []
+    new = np.r_[True, np.diff(rows) > 2 * margin + 1]
+    first, last = rows[new], rows[np.r_[new[1:], True]]
+    return [(max(int(a) - margin, 0), min(int(b) + margin, m - 1), True, True) for a, b in zip(first, last)]
+
+
 def plan_layer(
     robot: Robot,
     cell: Workcell,
@@ -563,7 +647,8 @@ def plan_layer(
     ``collides(q)`` is the collision predicate valid while printing that layer (the part then is the
     union of the earlier layers): the layer depends on no other layer's motion, so layers are
     independent tasks. Waypoints left without a usable pose get a deviated axis
-    (:func:`deviate_axes`) and the layer is planned again with it. Times start at 0 and segments at 0;
+    (:func:`deviate_axes`) and only the stretch around them is searched again
+    (:func:`deviation_windows`, its ends pinned to the path found where it has one). Times start at 0 and segments at 0;
     :func:`join_motions` places the layers one after the other. ``coarse_step`` > 1: the
     coarse-to-fine search of :func:`plan_motion` on :func:`coarse_rungs`; 1: the full ladder."""
     start = time.perf_counter()
@@ -572,23 +657,31 @@ def plan_layer(
     planned = np.asarray(toolpaths["normals"], float)[rows]
     path_id = np.asarray(toolpaths["path"])[rows]
     speed = segment_speeds(path_id, np.asarray(toolpaths["feed"], float)[rows], cell)
+    m = len(rows)
     keep = coarse_rungs(path_id, coarse_step) if coarse_step > 1 else None
-    axes, deviation, tried = planned, np.zeros(len(rows)), np.zeros(len(rows), bool)
+    axes, deviation, tried = planned, np.zeros(m), np.zeros(m, bool)
     collides = None if collides is None else Remembered(collides)
-    memo = RungMemo()  # every pass asks mostly the same rungs
-    while True:
-        dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed) \
-            if len(rows) > 1 else np.zeros(0)
-        near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1))[REFINE_WINDOW:REFINE_WINDOW + len(rows)] > 0
-        motion = plan_motion(robot, cell, positions, axes, dt, collides, cost, None, max_rotations, near, keep, memo)
-        stuck = (motion.segment < 0) & ~tried
-        if not stuck.any() or cell.max_axis_deviation <= 0:
+    memo = RungMemo()  # the windows ask mostly the rungs the first search asked
+    dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed) if m > 1 else np.zeros(0)
+    search = _searcher(robot, cell, positions, axes, collides, cost, None, max_rotations, None, memo)
+    chosen, link, solutions, p, checks = _links(robot, cell, positions, axes, dt, keep, collides, search)
+    while cell.max_axis_deviation > 0:
+        stuck = np.isnan(chosen[:, 0]) & ~tried
+        if not stuck.any():
             break
         axes, more = deviate_axes(robot, cell, positions, axes, stuck, collides, start_rotations(cell.rotations))
         tried |= stuck
         if not (more > 0).any():
             break
         deviation = deviation + more
+        dt = step_times(positions, speed, cell.min_step_time, axes, cell.tool_turn_speed)
+        near = np.convolve(deviation > 0, np.ones(2 * REFINE_WINDOW + 1))[REFINE_WINDOW:REFINE_WINDOW + m] > 0
+        search = _searcher(robot, cell, positions, axes, collides, cost, None, max_rotations, near, memo)
+        # (not widened: near a deviated axis the splits are the ladder's own, wider ends never mended one)
+        p_more, asked = _stretches(deviation_windows(more > 0, DEVIATION_MARGIN), np.arange(m), dt, search, chosen,
+                                   link, solutions, widen=0)
+        p, checks = max(p, p_more), checks + asked
+    motion = _motion(robot, cell, chosen, link, solutions, p, checks, dt, cost, None)
     done = motion.segment >= 0
     seg = motion.segment[done]
     local = np.cumsum(np.r_[True, seg[1:] != seg[:-1]]) - 1 if len(seg) else seg

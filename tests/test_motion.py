@@ -27,7 +27,8 @@ from curvslice.ladder import (
     sparse_edges,
     tilted_axes,
 )
-from curvslice.motion import Remembered, coarse_rungs, plan_layer, plan_motion, step_times, unwind
+from curvslice.motion import (Remembered, coarse_rungs, deviation_windows, plan_layer, plan_motion, reach_cone,
+                              step_times, unwind)
 from curvslice.workcell import load_workcell, rotation_samples, waypoints_from_flange
 
 
@@ -118,6 +119,41 @@ def test_lazy_node_filter_equals_filtering_first():
         np.testing.assert_array_equal(lazy.segment, eager.segment)
         assert lazy.cost == pytest.approx(eager.cost, rel=1e-12, abs=1e-12)
         assert count == sum(asked)
+
+
+def test_reach_cone_keeps_every_path_between_pinned_ends():
+    """With the first and last rung pinned to one node each, the search on the nodes inside
+    reach_cone finds scipy's shortest path over the whole ladder whenever that one connects the
+    pins without a split (the cone drops no node of any such path)."""
+    rng = np.random.default_rng(5)
+    connected = 0
+    for trial in range(300):
+        q, valid, dt, circ = _random_ladder(rng)
+        if trial % 2:  # node 0 of every rung in reach of the one before: the pins connect
+            d = np.abs(np.diff(q[:, 0], axis=0))
+            d[:, circ] = np.minimum(d[:, circ], 2 * np.pi - d[:, circ])
+            dt = np.maximum(dt, d.max(axis=1) * rng.uniform(1.0, 1.3, len(dt)))
+            valid[:, 0] = True
+        valid[[0, -1]] = False
+        valid[0, 0] = valid[-1, 0] = True
+        cost = "l1" if trial % 4 < 2 else "quadratic"
+        ref = reference_shortest_path(q, valid, dt, 1.0, circ, cost)
+        cone = reach_cone(np.where(valid[..., None], q, np.nan), (q[0, 0], q[-1, 0]), dt, 1.0, circ)
+        if (ref.node < 0).any() or ref.segment.max() > 0:
+            continue
+        connected += 1
+        assert cone[np.arange(len(q)), ref.node].all()
+        got, _, _ = shortest_path(q, valid & cone, dt, 1.0, circ, cost)
+        np.testing.assert_array_equal(got.node, ref.node)
+        assert got.cost == pytest.approx(ref.cost, rel=1e-12, abs=1e-12)
+    assert connected > 100
+
+
+def test_deviation_windows_cover_the_changed_rows():
+    changed = np.zeros(100, bool)
+    changed[[3, 10, 50, 97]] = True
+    windows = deviation_windows(changed, 4)
+    assert windows == [(0, 14, True, True), (46, 54, True, True), (93, 99, True, True)]
 
 
 def test_unwind_keeps_joints_in_range_and_splits_beyond_it():
