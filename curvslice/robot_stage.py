@@ -23,11 +23,15 @@ from curvslice.workcell import Workcell
 
 
 def layer_blocks(layer: np.ndarray) -> list[list[int]]:
-    """The print's layer values in blocks of :data:`~curvslice.collision.PART_BLOCK` consecutive
-    layers: a block's tasks share one collision scene, whose part BVH of the layers before the block
-    is built once (the scene's own block boundary)."""
-    values = [int(v) for v in np.unique(layer)]
-    return [values[i:i + PART_BLOCK] for i in range(0, len(values), PART_BLOCK)]
+    """The print's layer values in blocks: the values v with the same (v - 1) // PART_BLOCK (at most
+    :data:`~curvslice.collision.PART_BLOCK` consecutive layers). A block's tasks share one collision
+    scene, and the layers before the block are exactly that scene's base piece
+    (:meth:`~curvslice.collision.CollisionScene.for_layer`), built once; blocks of PART_BLOCK
+    values counted over a print whose layers skip values (layers without tool-paths) straddled a
+    base boundary and built two bases (kitten 0.8: 3 of 6 tasks)."""
+    values = np.unique(layer).astype(int)
+    key = (values - 1) // PART_BLOCK
+    return [[int(v) for v in values[key == k]] for k in np.unique(key)]
 
 
 def plan_block(values: list[int], *, cell: Workcell, toolpaths: dict[str, np.ndarray], layers: list[trimesh.Trimesh],

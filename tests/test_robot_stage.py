@@ -15,10 +15,13 @@ from curvslice.workcell import load_workcell
 
 
 def test_layer_blocks_partition_the_layers_in_print_order():
-    layer = np.repeat(np.arange(1, 2 * PART_BLOCK + 4), 3)
-    blocks = layer_blocks(layer)
-    assert [v for b in blocks for v in b] == list(range(1, 2 * PART_BLOCK + 4))
-    assert all(len(b) == PART_BLOCK for b in blocks[:-1]) and 0 < len(blocks[-1]) <= PART_BLOCK
+    values = np.setdiff1d(np.arange(1, 3 * PART_BLOCK + 4), [5, PART_BLOCK, PART_BLOCK + 1, 2 * PART_BLOCK + 2])
+    blocks = layer_blocks(np.repeat(values, 3)[::-1])
+    assert [v for b in blocks for v in b] == values.tolist()
+    # one scene base per block: the layers before the block's first end on a multiple of PART_BLOCK
+    bases = [[(v - 1) // PART_BLOCK * PART_BLOCK for v in b] for b in blocks]
+    assert all(len(set(b)) == 1 for b in bases) and len({b[0] for b in bases}) == len(blocks)
+    assert all(0 < len(b) <= PART_BLOCK for b in blocks)
 
 
 def test_skip_reasons_tell_out_of_reach_from_collision():
