@@ -429,15 +429,18 @@ class CollisionScene:
             out[rows] |= found
         return found
 
-    def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
-        """Names of all pairs in contact at one configuration (for reports and the verifier)."""
-        poses = self._poses(np.atleast_2d(np.asarray(q, float)))[0]
+    def colliding_pairs(self, q: np.ndarray) -> list:
+        """Names of all pairs in contact at one configuration (6,) (for reports and the verifier);
+        for configurations (n, 6), a list per configuration (their poses found at once)."""
+        q = np.asarray(q, float)
+        poses = self._poses(np.atleast_2d(q))
+        near = self._near(poses)  # pairs whose world-aligned boxes overlap (the others cannot touch)
         n_moving = len(self.shapes) - len(self.static)
-        for body in range(n_moving):
-            _set(self.shapes[body].obj, poses[body])
         request = fcl.CollisionRequest()
         out = []
-        for pa, pb in self.pairs:
-            if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, fcl.CollisionResult()):
-                out.append((self.shapes[pa].name, self.shapes[pb].name))
-        return out
+        for pose, live in zip(poses, near):
+            for body in range(n_moving):
+                _set(self.shapes[body].obj, pose[body])
+            out.append([(self.shapes[pa].name, self.shapes[pb].name) for pa, pb in self.pairs[live]
+                        if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, fcl.CollisionResult())])
+        return out[0] if q.ndim == 1 else out

@@ -92,9 +92,9 @@ def skip_reasons(robot: Robot, cell: Workcell, scene: CollisionScene, toolpaths:
     positions = np.asarray(toolpaths["positions"], float)
     normals = np.asarray(toolpaths["normals"], float)
     out = []
-    for r in rows:
-        q, ok = ladder(robot, cell, positions[r][None], normals[r][None], cell.rotations)
-        nodes = q[0, ok[0]]
+    rungs, valid = ladder(robot, cell, positions[rows], normals[rows], cell.rotations) if len(rows) else (None, None)
+    for i, r in enumerate(rows):
+        nodes = rungs[i, valid[i]]
         n = normals[r] / np.linalg.norm(normals[r])
         entry = {"row": int(r), "layer": int(toolpaths["layer"][r]), "position_mm": np.round(positions[r], 3).tolist(),
                  "tilt_deg": round(float(np.degrees(np.arccos(np.clip(n[2], -1, 1)))), 2)}
@@ -102,7 +102,7 @@ def skip_reasons(robot: Robot, cell: Workcell, scene: CollisionScene, toolpaths:
             entry["reason"] = "no IK solution inside the joint limits at any rotation about the nozzle axis"
         else:
             sample = nodes[np.linspace(0, len(nodes) - 1, min(REASON_SAMPLES, len(nodes))).astype(int)]
-            counts = Counter(pair for qq in sample for pair in scene.colliding_pairs(qq))
+            counts = Counter(pair for pairs in scene.colliding_pairs(sample) for pair in pairs)
             top = ", ".join(f"{a}/{b}" for (a, b), _ in counts.most_common(3))
             entry["reason"] = (f"all {len(nodes)} poses collide, also with the axis tilted up to "
                                f"{np.degrees(cell.max_axis_deviation):g} deg (most often {top})")

@@ -33,6 +33,11 @@ def test_skip_reasons_tell_out_of_reach_from_collision():
     far, buried = skip_reasons(robot, cell, scene, tp, np.array([0, 1]))
     assert far["reason"].startswith("no IK solution") and far["layer"] == 1 and far["tilt_deg"] == 0
     assert buried["reason"].startswith("all ") and "platform" in buried["reason"]
+    # the pairs of many configurations at once are each one's own
+    q, ok = ladder(robot, cell, np.array([[0.0, 0, -20], [0.0, 0, 30]]), np.array([[0, 0, 1.0], [0.3, 0, 1.0]]), 12)
+    q = q[ok]
+    batch = scene.colliding_pairs(q)
+    assert batch == [scene.colliding_pairs(x) for x in q] and any(batch) and not all(batch)
 
 
 def _slabs(n: int) -> list:
