@@ -156,13 +156,18 @@ class Redundancy:
         z = z[:, None] if z.ndim == 1 else z
         T = self.flange(z, rows)
         # the row's own branch only (an eighth of the full solve; -1 rows are fixed, any branch will do)
-        q, ok = ik(self.robot, T, check=False, branch=self.branch[rows] % 8)
+        q, ok = ik(self.robot, T, check=False, branch=self.branch[rows] % 8, chunk=CHUNK)
         if check:  # ik's FK re-check (its tolerances), on the one branch kept
             back = fk(self.robot, q)
             ok &= (np.linalg.norm(back[:, :3, 3] - T[:, :3, 3], axis=1) <= 1e-3) & \
                 (np.abs(back[:, :3, :3] - T[:, :3, :3]).max(axis=(1, 2)) <= 1e-6)
         q = near + (q - near + np.pi) % (2 * np.pi) - np.pi
         return q, ok
+
+
+#: rows per batch of the filter's kinematics (one branch per row): the stacked 4x4 products stay in
+#: cache (kitten block of 19k rows: joint_rates 31 % and the one-branch IK 36 % faster than at once / by 512)
+CHUNK = 4096
 
 
 def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray) -> np.ndarray:
@@ -172,7 +177,10 @@ def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray)
     so the flange turns about the nozzle tip p_n (Eq. 2.3): twist [p_n × ω; ω], ω = R_n ω_O with
     ω_O = -e_z for θ and -Rz(θ)ᵀ R0(t)ᵀ ω_t for a tilt, ω_t the angular velocity of the minimal
     rotation R0 (+Z to t) as t moves by ṫ: t × ṫ - ((t × ṫ)·e_z / (1 + t_z)) t (its spin about t
-    keeps R0's x axis from turning about +Z)."""
+    keeps R0's x axis from turning about +Z). In batches of :data:`CHUNK` rows."""
+    if len(z) > CHUNK:
+        return np.concatenate([joint_rates(red, z[s:s + CHUNK], rows[s:s + CHUNK], q[s:s + CHUNK])
+                               for s in range(0, len(z), CHUNK)])
     F = joint_placements(red.robot, q)
     axis = ["XYZ".index(red.robot.model.joints[j].shortname()[-1]) for j in range(1, 7)]
     a = np.stack([F[:, j + 1, :3, axis[j]] for j in range(6)], axis=2)  # (k, 3, 6)
