@@ -59,7 +59,7 @@ def test_scene_pieces_built_once_for_a_block_straddling_a_boundary(monkeypatch):
     built = []
     real = CollisionScene._piece
     monkeypatch.setattr(CollisionScene, "_piece",
-                        lambda self, mesh: (self is scene and built.append(len(mesh.faces))) or real(self, mesh))
+                        lambda self, mesh, *field: (self is scene and built.append(len(mesh.faces))) or real(self, mesh, *field))
     values = list(range(PART_BLOCK - 2, PART_BLOCK + 5))
     rng = np.random.default_rng(5)
     q, ok = ladder(robot, cell, rng.uniform(-4, 4, (4, 3)) * [1, 1, 0] + [0, 0, 0.5 * (PART_BLOCK + 6) - 1.0],
