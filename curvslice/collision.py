@@ -111,6 +111,8 @@ PROBES = 24
 BOUNDS_BATCH = 64
 #: printed layers per BVH of the carried part (see :meth:`CollisionScene.for_layer`)
 PART_BLOCK = 16
+#: printed layers per BVH of the carried part within a block (see :meth:`CollisionScene.for_layer`)
+PART_SUB = 4
 #: block bases whose pieces a scene keeps (see :meth:`CollisionScene.for_layer`)
 KEPT_BASES = 2
 #: cells of the part's distance field along its longest side at most (cells ≥ 0.5 mm)
@@ -173,9 +175,17 @@ class CollisionScene:
         """The printed part (model frame) carried on the platform; ``None`` or empty removes it."""
         self._carry([self._piece(mesh)] if mesh is not None and len(mesh.faces) else [])
 
-    def _piece(self, mesh: trimesh.Trimesh) -> _Piece:
-        grid = max(0.5, float(mesh.extents.max()) / FIELD_CELLS)
-        return _Piece(_mesh_shape("part", mesh), carried_bounds(mesh, grid) if self.bounds is not None else None)
+    def _piece(self, mesh: trimesh.Trimesh, bounds: CarriedBounds | None = None) -> _Piece:
+        """A part piece: its BVH and, with the scene's ``bounds``, its distance field (or ``bounds``,
+        a field of a mesh holding all of ``mesh``'s triangles: a lower bound on the distance to more
+        triangles is one on the distance to these)."""
+        if bounds is None and self.bounds is not None:
+            bounds = self._field(mesh)
+        return _Piece(_mesh_shape("part", mesh), bounds)
+
+    @staticmethod
+    def _field(mesh: trimesh.Trimesh) -> CarriedBounds:
+        return carried_bounds(mesh, max(0.5, float(mesh.extents.max()) / FIELD_CELLS))
 
     def _carry(self, pieces: list[_Piece]) -> None:
         self.carried = self.carried[:1] + [p.shape for p in pieces]
@@ -245,15 +255,18 @@ class CollisionScene:
         """Carry the union of layers 1..layer-1 (print order) and return the scene, the layer's
         collision predicate (``scene(q)``, :meth:`collisions`; :meth:`blocked` for whole rungs).
 
-        The part is carried as two pieces (BVH and distance field): the layers before the last
-        multiple of ``PART_BLOCK`` (the block's base, built once per block of layers) and the few
-        layers after it (built once per layer of the block); rebuilding the whole part every layer
-        is quadratic in the layers (more pieces cost more in every query than they save). The
-        pieces of the last ``KEPT_BASES`` bases are kept, so a task whose layers straddle a block
-        boundary, asked for its layers again (the jerk stage after the graph search), builds
-        nothing twice."""
+        The part is carried as up to three pieces (BVH and distance field): the layers before the
+        last multiple of ``PART_BLOCK`` (the block's base, built once per block of layers), those
+        after it up to the last multiple of ``PART_SUB`` (built once per ``PART_SUB`` layers) and the
+        few after that (built once per layer); rebuilding the whole part every layer is quadratic in
+        the layers, and so was the base's tail of up to 15 layers rebuilt every layer (the kitten
+        0.8's scene building: 120 layer builds a block of 16 with two pieces, 48 with three; more
+        pieces cost more in every query than they save). The pieces of the last ``KEPT_BASES``
+        bases are kept, so a task whose layers straddle a block boundary, asked for its layers
+        again (the jerk stage after the graph search), builds nothing twice."""
         earlier = layers[: max(layer - 1, 0)]
         cut = len(earlier) // PART_BLOCK * PART_BLOCK
+        mid = cut + (len(earlier) - cut) // PART_SUB * PART_SUB
         base = tuple(id(m) for m in earlier[:cut] if len(m.faces))
         if base not in self._pieces:
             self._pieces[base] = {}
@@ -261,13 +274,24 @@ class CollisionScene:
                 del self._pieces[old]
         kept = self._pieces[base]
         pieces = []
-        for run in (earlier[:cut], earlier[cut:]):
+        # the last piece's distance field is that of its whole group of PART_SUB layers, built once for
+        # the up to PART_SUB - 1 pieces of the group (on the bunny the field, not the BVH, is most of a
+        # small piece's cost: 0.2-0.3 s on a curved layer's grid of 2M cells): the layer being planned and
+        # those after it in the group only loosen the bound where the extruder's bodies are near them
+        group = [m for m in layers[mid: mid + PART_SUB] if len(m.faces)]
+        for run, field in ((earlier[:cut], None), (earlier[cut:mid], None), (earlier[mid:], group)):
             run = [m for m in run if len(m.faces)]
             if not run:
                 continue
             key = tuple(id(m) for m in run)
             if key not in kept:
-                kept[key] = self._piece(trimesh.util.concatenate(run))
+                bounds = None
+                if field is not None and self.bounds is not None:
+                    field_key = ("field",) + tuple(id(m) for m in field)
+                    if field_key not in kept:
+                        kept[field_key] = self._field(trimesh.util.concatenate(field))
+                    bounds = kept[field_key]
+                kept[key] = self._piece(trimesh.util.concatenate(run), bounds)
             pieces.append(kept[key])
         self._carry(pieces)
         return self
@@ -424,15 +448,18 @@ class CollisionScene:
             out[rows] |= found
         return found
 
-    def colliding_pairs(self, q: np.ndarray) -> list[tuple[str, str]]:
-        """Names of all pairs in contact at one configuration (for reports and the verifier)."""
-        poses = self._poses(np.atleast_2d(np.asarray(q, float)))[0]
+    def colliding_pairs(self, q: np.ndarray) -> list:
+        """Names of all pairs in contact at one configuration (6,) (for reports and the verifier);
+        for configurations (n, 6), a list per configuration (their poses found at once)."""
+        q = np.asarray(q, float)
+        poses = self._poses(np.atleast_2d(q))
+        near = self._near(poses)  # pairs whose world-aligned boxes overlap (the others cannot touch)
         n_moving = len(self.shapes) - len(self.static)
-        for body in range(n_moving):
-            _set(self.shapes[body].obj, poses[body])
         request = fcl.CollisionRequest()
         out = []
-        for pa, pb in self.pairs:
-            if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, fcl.CollisionResult()):
-                out.append((self.shapes[pa].name, self.shapes[pb].name))
-        return out
+        for pose, live in zip(poses, near):
+            for body in range(n_moving):
+                _set(self.shapes[body].obj, pose[body])
+            out.append([(self.shapes[pa].name, self.shapes[pb].name) for pa, pb in self.pairs[live]
+                        if fcl.collide(self.shapes[pa].obj, self.shapes[pb].obj, request, fcl.CollisionResult())])
+        return out[0] if q.ndim == 1 else out

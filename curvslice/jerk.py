@@ -106,7 +106,7 @@ class JerkSettings:
     scale_spread: float = 1.3
     max_tilt_deg: float = 8.0  # the global filter may tilt a tool axis this far (0 = θ only; within the workcell's bound)
     tilt_weight: float = 1.0  # μ: pull of a tilt (rad²) back to the planned axis, against J (rad²/s⁶)
-    fd_step: float = 1e-6  # rad, finite-difference step of the flange pose (and of q(θ) in Alg. 6) for dq/dz
+    fd_step: float = 1e-6  # rad, finite-difference step of q(θ) in Alg. 6 for dq/dθ
     weights: tuple[float, ...] | None = None  # diagonal of W (Eq. 4.2); None = I
 
 
@@ -156,7 +156,7 @@ class Redundancy:
         z = z[:, None] if z.ndim == 1 else z
         T = self.flange(z, rows)
         # the row's own branch only (an eighth of the full solve; -1 rows are fixed, any branch will do)
-        q, ok = ik(self.robot, T, check=False, branch=self.branch[rows] % 8)
+        q, ok = ik(self.robot, T, check=False, branch=self.branch[rows] % 8, chunk=CHUNK)
         if check:  # ik's FK re-check (its tolerances), on the one branch kept
             back = fk(self.robot, q)
             ok &= (np.linalg.norm(back[:, :3, 3] - T[:, :3, 3], axis=1) <= 1e-3) & \
@@ -165,12 +165,22 @@ class Redundancy:
         return q, ok
 
 
-def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray, eps: float) -> np.ndarray:
+#: rows per batch of the filter's kinematics (one branch per row): the stacked 4x4 products stay in
+#: cache (kitten block of 19k rows: joint_rates 31 % and the one-branch IK 36 % faster than at once / by 512)
+CHUNK = 4096
+
+
+def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray) -> np.ndarray:
     """dq/dz (k, 6, m) at the rows' poses q: the flange's spatial twist per unit of each variable
     mapped through the inverse of the arm's spatial Jacobian (columns [p_j × a_j; a_j] from the joint
     frames) — no IK needed. z moves the deposition frame T_O^P = [R0(t) Rz(θ), c] about its origin,
     so the flange turns about the nozzle tip p_n (Eq. 2.3): twist [p_n × ω; ω], ω = R_n ω_O with
-    ω_O = -e_z for θ and -Rz(θ)ᵀ ∂vee(R0(t(z))ᵀ R0(t_i))/∂z for a tilt (a finite difference of R0)."""
+    ω_O = -e_z for θ and -Rz(θ)ᵀ R0(t)ᵀ ω_t for a tilt, ω_t the angular velocity of the minimal
+    rotation R0 (+Z to t) as t moves by ṫ: t × ṫ - ((t × ṫ)·e_z / (1 + t_z)) t (its spin about t
+    keeps R0's x axis from turning about +Z). In batches of :data:`CHUNK` rows."""
+    if len(z) > CHUNK:
+        return np.concatenate([joint_rates(red, z[s:s + CHUNK], rows[s:s + CHUNK], q[s:s + CHUNK])
+                               for s in range(0, len(z), CHUNK)])
     F = joint_placements(red.robot, q)
     axis = ["XYZ".index(red.robot.model.joints[j].shortname()[-1]) for j in range(1, 7)]
     a = np.stack([F[:, j + 1, :3, axis[j]] for j in range(6)], axis=2)  # (k, 3, 6)
@@ -180,16 +190,19 @@ def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray,
     w = np.zeros((m, 3, k))  # ω_O per variable, deposition frame
     w[:, 2, 0] = -1.0
     if k > 1:
-        Z = np.repeat(z[None], k, axis=0)
-        Z[np.arange(1, k), :, np.arange(1, k)] += eps
-        axes = red.axis(Z.reshape(-1, k), np.tile(rows, k))
-        R0 = deposition_frames(np.zeros((len(axes), 3)), axes, np.zeros(1))[:, 0, :3, :3].reshape(k, m, 3, 3)
-        M = np.swapaxes(R0[1:], -1, -2) @ R0[0][None]  # R0(t + eps)ᵀ R0(t)
-        vee = np.stack([M[..., 2, 1] - M[..., 1, 2], M[..., 0, 2] - M[..., 2, 0], M[..., 1, 0] - M[..., 0, 1]], -1) / (2 * eps)
-        c, s = np.cos(z[:, 0]), np.sin(z[:, 0])
-        w[:, 0, 1:] = (c * vee[..., 0] + s * vee[..., 1]).T  # Rz(θ)ᵀ vee
-        w[:, 1, 1:] = (-s * vee[..., 0] + c * vee[..., 1]).T
-        w[:, 2, 1:] = vee[..., 2].T
+        b = red.basis[rows]  # (m, 2, 3): t(z) = n / |n|, n = t_i + α b_1 + β b_2
+        n = red.axes[rows] + np.einsum("ik,ikj->ij", z[:, 1:3], b)
+        size = np.linalg.norm(n, axis=1)
+        t = n / size[:, None]
+        dt = (b - t[:, None] * np.einsum("ikj,ij->ik", b, t)[..., None]) / size[:, None, None]  # (m, 2, 3)
+        spin = np.cross(t[:, None], dt)
+        spin -= (spin[..., 2] / (1.0 + t[:, 2, None]))[..., None] * t[:, None]
+        R0 = deposition_frames(np.zeros((m, 3)), t, np.zeros(1))[:, 0, :3, :3]
+        vee = -np.einsum("iab,ika->ikb", R0, spin)  # -R0ᵀ ω_t per tilt variable (m, 2, 3)
+        c, s = np.cos(z[:, 0])[:, None], np.sin(z[:, 0])[:, None]
+        w[:, 0, 1:] = c * vee[..., 0] + s * vee[..., 1]  # Rz(θ)ᵀ vee
+        w[:, 1, 1:] = -s * vee[..., 0] + c * vee[..., 1]
+        w[:, 2, 1:] = vee[..., 2]
     Rn, pn = red.cell.nozzle[:3, :3], red.cell.nozzle[:3, 3]
     omega = Rn @ w  # (m, 3, k), base frame
     twist = np.concatenate([np.cross(pn[None, :, None], omega, axis=1), omega], axis=1)  # (m, 6, k)
@@ -307,11 +320,13 @@ def _normal_band(parts: list, G: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     N, u = m * k, 5 * k - 1
     S = np.zeros((5, m * 6))
     y = np.zeros(m * 6)  # Aᵀ C r per row and joint
+    groups = []  # the live residuals of every group, summed in one pass
     for first, W, r, c in parts:
         live = np.flatnonzero(c.any(axis=1))
-        if not len(live):
-            continue
-        first, W, c, cr = first[live], W[live], c[live], (c * r)[live]
+        if len(live):
+            groups.append((first[live], W[live], c[live], (c * r)[live]))
+    if groups:
+        first, W, c, cr = (np.concatenate(x) for x in zip(*groups))
         for a in range(5):
             idx = ((first + a)[:, None] * 6 + np.arange(6)).ravel()
             y += np.bincount(idx, (W[:, a, None] * cr).ravel(), m * 6)
@@ -395,11 +410,17 @@ def _gauss_newton(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
     u = 5 * k - 1
     steps = 0
     moved = True
+    G = np.zeros((n, 6, k))
+    stale = np.ones(n, bool)  # rows whose dq/dz is not that of their current pose
     for _ in range(iterations):
         if moved:  # the linearization at the current z (a step rejected everywhere keeps it)
-            G = np.zeros((n, 6, k))
             live = cols[active[seg_of[cols]]]
-            G[live] = joint_rates(red, z[live], live, q[live], settings.fd_step)
+            gone = np.ones(n, bool)
+            gone[live] = False
+            G[gone] = 0.0  # rows of finished segments are fixed
+            new = live[stale[live]]  # rows of a segment whose last step was rejected keep theirs
+            G[new] = joint_rates(red, z[new], new, q[new])
+            stale[new] = False
             normal, grad = _normal_band(prob.residual_parts(q), G)
             if k > 1:  # the tilt's pull back to the planned axis
                 tilt = np.zeros((n + 4, k))
@@ -431,6 +452,7 @@ def _gauss_newton(red: Redundancy, z: np.ndarray, q: np.ndarray, t: np.ndarray, 
         new_cost = _segment_sums(row_cost(new_q, new_z), segment)
         better = (new_cost < cost) & ~bad_seg
         keep = better[seg_of]
+        stale |= keep
         z = np.where(keep[:, None], new_z, z)
         q = np.where(keep[:, None], new_q, q)
         improved = np.where(better, (cost - new_cost) / np.maximum(cost, 1e-300), 0.0)

@@ -58,12 +58,14 @@ def time_scale(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits
     c = np.log(settings.scale_spread)
     idx = np.arange(n - 1)
     _, seg_rank = np.unique(seg[:-1], return_inverse=True)
+    _, seg_of = np.unique(seg, return_inverse=True)
     big = 1e6
     rounds = 0
+    start, w = stencils(t, seg)
+    win = q[np.minimum(start[:, None] + np.arange(5), n - 1)]
     for rounds in range(1, settings.scaling_rounds + 1):
-        start, w = stencils(t, seg)
-        acc = np.einsum("nk,nkj->nj", w[:, 1], q[np.minimum(start[:, None] + np.arange(5), n - 1)])
-        jerk = np.einsum("nk,nkj->nj", w[:, 2], q[np.minimum(start[:, None] + np.arange(5), n - 1)])
+        acc = np.einsum("nk,nkj->nj", w[:, 1], win)
+        jerk = np.einsum("nk,nkj->nj", w[:, 2], win)
         over_a = np.abs(acc) / limits.acceleration
         over_j = np.abs(jerk) / limits.jerk
         speed = np.abs(np.diff(q, axis=0)).max(axis=1) / np.diff(t) / limits.speed
@@ -87,8 +89,11 @@ def time_scale(q: np.ndarray, t: np.ndarray, segment: np.ndarray, limits: Limits
         dt = np.diff(t)
         dt = np.where(inside, dt * np.exp(lf), dt)
         t = t[0] + np.r_[0.0, np.cumsum(dt)]
-    start, w = stencils(t, seg)
-    win = q[np.minimum(start[:, None] + np.arange(5), n - 1)]
+        # new stencil weights only in the segments stretched (the others' steps are as they were)
+        hot = np.zeros(seg_of.max() + 1, bool)
+        hot[seg_of[:-1][(lf > 0) & inside]] = True
+        sub = np.flatnonzero(hot[seg_of])
+        w[sub] = stencils(t[sub], seg[sub])[1]
     acc = np.einsum("nk,nkj->nj", w[:, 1], win)
     jerk = np.einsum("nk,nkj->nj", w[:, 2], win)
     left = int(((np.abs(acc) > limits.acceleration * (1 + 1e-9)) | (np.abs(jerk) > limits.jerk * (1 + 1e-9))).any(axis=1).sum())

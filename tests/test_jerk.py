@@ -11,7 +11,8 @@ import pytest
 from curvslice.collision import CollisionScene
 from curvslice.exporters.joints_csv import write_robot_outputs
 from curvslice.derivatives import combined_stats, derivatives, group_stats, motion_stats, uniform_jerk
-from curvslice.jerk import JerkSettings, dense_projection, global_filter, local_filter, redundancy, trajectory_stage
+from curvslice.jerk import (JerkSettings, dense_projection, global_filter, joint_rates, local_filter, redundancy,
+                            trajectory_stage)
 from curvslice.time_scaling import Limits, rest_to_rest, state_to_state, time_scale
 from curvslice.kinematics import fk_reference, joint_placements, load_robot
 from curvslice.motion import plan_motion, plan_print, step_times
@@ -91,6 +92,26 @@ def dome():
 def _on_waypoints(cell, robot, q, pos, nor):
     p, a = waypoints_from_flange(cell, fk_reference(robot, q))
     return np.linalg.norm(p - pos, axis=1).max(), np.arccos(np.clip(np.einsum("ij,ij->i", a, nor), -1, 1)).max()
+
+
+def test_joint_rates_are_the_derivatives_of_the_ik_in_theta_and_tilt(dome):
+    """dq/dz of the Gauss-Newton filter (Jacobian and the minimal rotation's angular velocity, no
+    IK) against central differences of q(z) by IK on each row's branch, at tilted axes."""
+    cell, robot, pos, nor, motion = dome
+    red, theta = redundancy(robot, cell, pos, nor, motion.q)
+    rows = np.arange(0, len(pos), 7)
+    rng = np.random.default_rng(3)
+    z = np.c_[theta[rows] + rng.uniform(-0.3, 0.3, len(rows)), rng.uniform(-0.08, 0.08, (len(rows), 2))]
+    q, ok = red.joints(z, rows, motion.q[rows])
+    assert ok.all()
+    G = joint_rates(red, z, rows, q)
+    h = 1e-5
+    for v in range(3):
+        step = np.zeros(3)
+        step[v] = h
+        (qp, okp), (qm, okm) = red.joints(z + step, rows, q), red.joints(z - step, rows, q)
+        assert okp.all() and okm.all()
+        np.testing.assert_allclose(G[:, :, v], (qp - qm) / (2 * h), atol=1e-6 * max(1.0, np.abs(G).max()))
 
 
 @pytest.mark.parametrize("method", ["alg6", "global"])

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from curvslice.collision import PART_BLOCK, CollisionScene
+from curvslice.collision import PART_BLOCK, PART_SUB, CollisionScene
 from curvslice.kinematics import load_robot
 from curvslice.ladder import ladder
 from curvslice.robot_stage import layer_blocks, skip_reasons
@@ -15,10 +15,13 @@ from curvslice.workcell import load_workcell
 
 
 def test_layer_blocks_partition_the_layers_in_print_order():
-    layer = np.repeat(np.arange(1, 2 * PART_BLOCK + 4), 3)
-    blocks = layer_blocks(layer)
-    assert [v for b in blocks for v in b] == list(range(1, 2 * PART_BLOCK + 4))
-    assert all(len(b) == PART_BLOCK for b in blocks[:-1]) and 0 < len(blocks[-1]) <= PART_BLOCK
+    values = np.setdiff1d(np.arange(1, 3 * PART_BLOCK + 4), [5, PART_BLOCK, PART_BLOCK + 1, 2 * PART_BLOCK + 2])
+    blocks = layer_blocks(np.repeat(values, 3)[::-1])
+    assert [v for b in blocks for v in b] == values.tolist()
+    # one scene base per block: the layers before the block's first end on a multiple of PART_BLOCK
+    bases = [[(v - 1) // PART_BLOCK * PART_BLOCK for v in b] for b in blocks]
+    assert all(len(set(b)) == 1 for b in bases) and len({b[0] for b in bases}) == len(blocks)
+    assert all(0 < len(b) <= PART_BLOCK for b in blocks)
 
 
 def test_skip_reasons_tell_out_of_reach_from_collision():
@@ -30,6 +33,11 @@ def test_skip_reasons_tell_out_of_reach_from_collision():
     far, buried = skip_reasons(robot, cell, scene, tp, np.array([0, 1]))
     assert far["reason"].startswith("no IK solution") and far["layer"] == 1 and far["tilt_deg"] == 0
     assert buried["reason"].startswith("all ") and "platform" in buried["reason"]
+    # the pairs of many configurations at once are each one's own
+    q, ok = ladder(robot, cell, np.array([[0.0, 0, -20], [0.0, 0, 30]]), np.array([[0, 0, 1.0], [0.3, 0, 1.0]]), 12)
+    q = q[ok]
+    batch = scene.colliding_pairs(q)
+    assert batch == [scene.colliding_pairs(x) for x in q] and any(batch) and not all(batch)
 
 
 def _slabs(n: int) -> list:
@@ -51,7 +59,7 @@ def test_scene_pieces_built_once_for_a_block_straddling_a_boundary(monkeypatch):
     built = []
     real = CollisionScene._piece
     monkeypatch.setattr(CollisionScene, "_piece",
-                        lambda self, mesh: (self is scene and built.append(len(mesh.faces))) or real(self, mesh))
+                        lambda self, mesh, *field: (self is scene and built.append(len(mesh.faces))) or real(self, mesh, *field))
     values = list(range(PART_BLOCK - 2, PART_BLOCK + 5))
     rng = np.random.default_rng(5)
     q, ok = ladder(robot, cell, rng.uniform(-4, 4, (4, 3)) * [1, 1, 0] + [0, 0, 0.5 * (PART_BLOCK + 6) - 1.0],
@@ -66,9 +74,15 @@ def test_scene_pieces_built_once_for_a_block_straddling_a_boundary(monkeypatch):
             np.testing.assert_array_equal(got, fresh(q))
             answers.append(got)
     assert any(a.any() for a in answers) and not all(a.all() for a in answers)
-    # a tail per layer above the block's first (the first has none: its part is the base) and the
-    # base: nothing is built again in the second round
-    assert len(built) == len(values)
+    # each run of layers (base, whole PART_SUB groups after it, the rest) built once, nothing again
+    # in the second round
+    runs = set()
+    for v in values:
+        n = v - 1
+        cut = n // PART_BLOCK * PART_BLOCK
+        mid = cut + (n - cut) // PART_SUB * PART_SUB
+        runs |= {r for r in ((0, cut), (cut, mid), (mid, n)) if r[1] > r[0]}
+    assert len(built) == len(runs)
 
 
 def test_verifier_confirms_only_waypoints_without_any_pose():

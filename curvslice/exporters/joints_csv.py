@@ -36,20 +36,12 @@ def write_joints_csv(
 ) -> None:
     """Write the rows (N of each array; positions/normals/q with 3/3/6 columns)."""
     require_finite(f"joints CSV writer ({Path(path).name})", t=t, positions=positions, normals=normals, q=q)
-    n = len(q)
-    ints = np.column_stack([layer, path_id, index]).astype(np.int64)
+    ints = np.column_stack([layer, path_id, index, segment, np.asarray(extruding, bool)]).astype(np.int64).tolist()
+    floats = np.column_stack([t, positions, normals, q]).astype(float).tolist()  # Python floats: repr round-trips
     with open(path, "w") as f:
         f.write(",".join(COLUMNS) + "\n")
-        for i in range(n):
-            f.write(
-                f"{ints[i, 0]},{ints[i, 1]},{ints[i, 2]},{float(t[i])!r},"
-                + ",".join(repr(float(v)) for v in positions[i])
-                + ","
-                + ",".join(repr(float(v)) for v in normals[i])
-                + ","
-                + ",".join(repr(float(v)) for v in q[i])
-                + f",{int(segment[i])},{int(bool(extruding[i]))}\n"
-            )
+        f.writelines(f"{i[0]},{i[1]},{i[2]}," + ",".join(map(repr, v)) + f",{i[3]},{i[4]}\n"
+                     for i, v in zip(ints, floats))
 
 
 def read_joints_csv(path: Path) -> dict[str, np.ndarray]:
