@@ -108,9 +108,9 @@ class Settings:
                               hi=float(np.radians(89.0)))
     gap_passes: bool = setting(True, "extra passes through the gaps the spirals leave (§3.7)", "toolpaths",
                                flag="--no-gap-passes", negate=True)
-    start_rule: str = setting("seam", "where each layer's spiral starts: seam (nearest a fixed point of the part: "
-                              "layers are independent tasks that scale over workers, about 1 %% more motion) or chain "
-                              "(nearest where the previous layer ended: least travel, but a sequential fold)",
+    start_rule: str = setting("chain", "where each layer's spiral starts: chain (nearest where the previous layer "
+                              "ended: least travel, but a sequential fold) or seam (nearest a fixed point of the part: "
+                              "layers are independent tasks that scale over workers, about 1 %% more motion)",
                               "toolpaths", choices=START_RULES)
     # robot (§3.5.3, §4.3.1)
     robot: str | None = setting(None, "workcell: ur3, ur5, ur10, irb120 (shipped) or a workcell JSON file; "

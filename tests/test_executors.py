@@ -65,14 +65,14 @@ def test_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):
     assert strip(reports[0]["toolpaths"]["per_layer"]) == strip(reports[1]["toolpaths"]["per_layer"])
 
 
-def test_chain_start_rule_on_a_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):
-    """The ``chain`` rule (rings, then the sequential fold of pieces on one worker, then orientations)
-    gives the in-process arrays on two workers too, and not the default ``seam`` rule's."""
-    chain = [*ARGS, "--start-rule", "chain"]
-    assert main(["slice", str(TEE), *chain, "--out", str(tmp_path / "a")]) == 0
-    assert main(["slice", str(TEE), *chain, "--out", str(tmp_path / "b"), "--workers", "2"]) == 0
+def test_seam_start_rule_on_a_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):
+    """The ``seam`` rule (one independent task per layer: rings, pieces and orientations) gives the
+    in-process arrays on two workers too, and not the default ``chain`` rule's."""
+    seam = [*ARGS, "--start-rule", "seam"]
+    assert main(["slice", str(TEE), *seam, "--out", str(tmp_path / "a")]) == 0
+    assert main(["slice", str(TEE), *seam, "--out", str(tmp_path / "b"), "--workers", "2"]) == 0
     _assert_same(tmp_path / "a", tmp_path / "b")
-    seam, chain = (_arrays(f)["toolpaths.npz:positions"] for f in (in_process, tmp_path / "a"))
+    chain, seam = (_arrays(f)["toolpaths.npz:positions"] for f in (in_process, tmp_path / "a"))
     assert seam.shape != chain.shape or not np.array_equal(seam, chain)
 
 

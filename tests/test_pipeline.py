@@ -49,8 +49,8 @@ def test_stage_keys_change_from_the_first_changed_stage_on() -> None:
     assert stage_keys(TEE, Settings(voxel=2.0)) == base
     tp = stage_keys(TEE, Settings(voxel=2.0, path_width=2.0))
     assert [tp[s] == base[s] for s in STAGE_NAMES] == [True, True, False, False]
-    chain = stage_keys(TEE, Settings(voxel=2.0, start_rule="chain"))  # and a folder of the other rule is not resumed
-    assert [chain[s] == base[s] for s in STAGE_NAMES] == [True, True, False, False]
+    seam = stage_keys(TEE, Settings(voxel=2.0, start_rule="seam"))  # and a folder of the other rule is not resumed
+    assert [seam[s] == base[s] for s in STAGE_NAMES] == [True, True, False, False]
     vox = stage_keys(TEE, Settings(voxel=2.5))
     assert not any(vox[s] == base[s] for s in STAGE_NAMES)
     with pytest.raises(CurvsliceError, match="unknown setting"):

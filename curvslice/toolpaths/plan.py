@@ -248,14 +248,13 @@ def _order_pieces(pieces: list[np.ndarray], start: np.ndarray | None) -> list[tu
 # ----------------------------------------------------------------------------- all layers
 
 
-#: Where each layer's spiral starts. ``seam`` (the default): nearest a fixed point of the part
-#: (:func:`seam_point`), so every layer's tool-paths are one independent task that scales over
-#: workers. ``chain``: nearest where the previous layer ended (§3.3.2 item 2, the least travel between
-#: layers, but each layer waits for the one before: a sequential fold, 40 % of the bunny's stage). Both
-#: pass verify on the same standard runs (bunny 1.0, kitten 0.8-2.0, fandisk and homer 0.8; the bunny at
-#: 2.0 mm only under ``chain``: benchmarks/SCALING.md) since a spiral is cut where no ring turns a corner (:meth:`~curvslice.toolpaths.spirals._Builder.cut_line`);
-#: ``seam`` moves 1.2-1.6x as far between layers (the robot's travel; +0.5-2 % of all its motion).
-START_RULES = ("seam", "chain")
+#: Where each layer's spiral starts. ``chain`` (the default): nearest where the previous layer ended
+#: (§3.3.2 item 2, the least travel between layers, but each layer waits for the one before: a
+#: sequential fold). ``seam``: nearest a fixed point of the part (:func:`seam_point`), so every layer's
+#: tool-paths are one independent task that scales over workers. Overlap still depends on where the
+#: spirals are cut, and the seam's cut takes one corpus case past verify's 5 % (fandisk at 2.5 mm:
+#: 6.0 %, chain 4.5 %): ``seam`` can become the default once overlap no longer depends on the cut.
+START_RULES = ("chain", "seam")
 
 
 @dataclass(frozen=True)
@@ -272,9 +271,9 @@ class ToolpathSettings:
     max_tilt: float = float(np.radians(40.0))
     window: int = 8  #: earlier layers searched for the closest point (Eq. 3.3)
     fill_gaps: bool = True  #: extra passes through strips the spirals leave open (more jumps)
-    #: where a layer's spiral starts (:data:`START_RULES`): ``seam`` (nearest a fixed point of the part,
-    #: every layer on its own) or ``chain`` (nearest where the previous layer ended)
-    start_rule: str = "seam"
+    #: where a layer's spiral starts (:data:`START_RULES`): ``chain`` (nearest where the previous layer
+    #: ended) or ``seam`` (nearest a fixed point of the part, every layer on its own)
+    start_rule: str = "chain"
 
     def __post_init__(self) -> None:
         for name in ("path_width", "step", "filament_diameter", "feed", "max_angle", "max_tilt"):
