@@ -50,15 +50,8 @@ def _point_at(closed_pts: np.ndarray, cum: np.ndarray, s: float) -> np.ndarray:
 
 def _closest_s(ring: Ring, point: np.ndarray) -> tuple[float, float]:
     """Arclength of the point of ``ring`` closest to ``point`` and that distance."""
-    a = ring.points
-    b = np.roll(a, -1, axis=0)
-    ab = b - a
-    t = np.clip(np.einsum("ij,ij->i", point - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0, 1)
-    proj = a + t[:, None] * ab
-    dist = np.linalg.norm(proj - point, axis=1)
-    i = int(np.argmin(dist))
-    cum = ring.cumlen
-    return float(cum[i] + t[i] * (cum[i + 1] - cum[i])), float(dist[i])
+    s, closest = _closest_points(ring, ring.cumlen, point[None])
+    return float(s[0]), float(np.linalg.norm(closest[0] - point))
 
 
 def _tangent(ring: Ring, s: float, span: float) -> np.ndarray:
@@ -78,12 +71,8 @@ def _seam(ring: Ring, s: float, width: float) -> float:
     cum, total = ring.cumlen, ring.length
     if total <= 4.0 * width:
         return s
-    closed = np.vstack([ring.points, ring.points[:1]])
     at = cum[:-1]
-    ahead, behind = (np.column_stack([np.interp((at + d) % total, cum, closed[:, i]) for i in range(3)])
-                     for d in (width, -width))
-    u, v = ring.points - behind, ahead - ring.points
-    cos = np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-300)
+    cos = _turn_cos(ring, cum, at, width)
     straight = np.nonzero(cos > np.cos(CORNER_ANGLE))[0]
     if len(straight) == 0:  # a small ring: its straightest point
         return float(at[np.argmax(cos)])
