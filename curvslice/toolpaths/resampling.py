@@ -7,7 +7,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from curvslice.flow import filament_length
-from curvslice.toolpaths.constants import CORNER_ANGLE, DENSE_STEP, SAME_PASS_BEADS
+from curvslice.toolpaths.constants import CORNER_ANGLE, SAME_PASS_BEADS
 from curvslice.toolpaths.stacked import run_labels, run_offsets
 
 
