@@ -138,14 +138,20 @@ def _relax(
     pred: np.ndarray,
     start: int,
     edges: Callable[[int], tuple[np.ndarray, np.ndarray, np.ndarray]],
+    changed: int | None = None,
 ) -> None:
-    """Fill ``best``/``pred`` for rungs ``start..m-1`` (rung start-1 already final)."""
+    """Fill ``best``/``pred`` for rungs ``start..m-1`` (rung start-1 already final). ``changed``: the
+    last rung whose ``valid`` changed since ``best``/``pred`` were filled: a later rung that comes out
+    bit-identical (e.g. a new motion's sources after a disconnection) leaves every rung after it as it
+    was, so the relaxation stops there."""
     m, K = valid.shape
     reached = np.isfinite(best[max(start, 1) - 1]).any() if start > 0 else False
     for i in range(max(start, 0), m):
         row, back = best[i], pred[i]
+        was = (row.copy(), back.copy()) if changed is not None and i > changed else None
         row.fill(np.inf)
         back.fill(-1)
+        linked = False
         if i > 0 and reached:
             ia, ib, w = edges(i - 1)
             total = best[i - 1][ia] + w
@@ -158,9 +164,12 @@ def _relax(
                 np.minimum.at(first, ib[tie], ia[tie])  # ... then first source
                 hit = first < K
                 back[hit] = first[hit]
-                continue
-        row[valid[i]] = 0.0  # sources: a new motion starts here
-        reached = bool(valid[i].any())
+                linked = True
+        if not linked:
+            row[valid[i]] = 0.0  # sources: a new motion starts here
+            reached = bool(valid[i].any())
+        if was is not None and np.array_equal(row, was[0]) and np.array_equal(back, was[1]):
+            return  # rung i as before (same kind: linked or sources) and no change after it
 
 
 def _backtrack(best: np.ndarray, pred: np.ndarray) -> LadderPath:
@@ -198,6 +207,7 @@ def shortest_path(
     group: np.ndarray | None = None,
     edge_cache: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] | None = None,
     edge_memo: EdgeMemo | None = None,
+    nodes: np.ndarray | None = None,
 ) -> tuple[LadderPath, np.ndarray, int]:
     """Multi-source shortest path through a ladder (m rungs, K nodes, 6 joints), rung by rung.
 
@@ -207,10 +217,14 @@ def shortest_path(
     default: the whole rung) in that rung are asked too. ``edge_cache`` (rung i -> edges i to i+1) may
     carry edges over from an earlier call on the same nodes (edges to nodes invalid now are ignored);
     ``edge_memo`` (:class:`EdgeMemo`) keeps the edges between two rungs by their content (nodes and
-    Δt: the same edges whatever call asks, e.g. :class:`RungMemo`'s ``edges``).
+    Δt: the same edges whatever call asks, e.g. :class:`RungMemo`'s ``edges``). ``nodes`` (m, K)
+    (default ``valid``): the nodes the edges are computed over, a superset of ``valid`` (e.g. every IK
+    node, whatever is known of collisions; ``nodes | valid`` is used): edges touching a node not valid are never relaxed, so the
+    path is the same, and the edges depend on ``q`` and ``nodes`` only (shared by calls that differ in
+    ``valid``, through ``edge_cache`` or ``edge_memo``).
     Returns the path, the final validity mask, and how many nodes ``node_ok`` was asked about.
     """
-    q = np.where(valid[..., None], q, np.nan)
+    q = np.where((valid if nodes is None else nodes | valid)[..., None], q, np.nan)
     valid = valid.copy()
     m, K = valid.shape
     best = np.full((m, K), np.inf)
@@ -260,8 +274,9 @@ def shortest_path(
             checked[rr, kk] = True
             valid[rr[~ok], kk[~ok]] = False
         valid[bad, path.node[bad]] = False
-        q[~valid] = np.nan
-        _relax(valid, best, pred, int(bad.min()), edges)
+        if nodes is None:
+            q[~valid] = np.nan
+        _relax(valid, best, pred, int(bad.min()), edges, int(max(bad.max(), rr.max(initial=-1))))
 
 
 def reference_shortest_path(

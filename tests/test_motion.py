@@ -121,6 +121,28 @@ def test_lazy_node_filter_equals_filtering_first():
         assert count == sum(asked)
 
 
+def test_lazy_search_over_a_node_superset_with_shared_edges_equals_scipy():
+    """Edges over a superset of the usable nodes (``nodes``, shared by calls through one
+    ``edge_cache``) and the relaxation stopping where a rung comes out as before (dense blocking:
+    many disconnections, so many rungs restart as sources) give scipy's shortest path on the
+    usable, collision-free nodes, bit for bit the nodes of the plain lazy search."""
+    rng = np.random.default_rng(11)
+    for trial in range(150):
+        q, valid, dt, circ = _random_ladder(rng)
+        blocked = rng.random(valid.shape) < rng.uniform(0.2, 0.8)
+        group = np.arange(valid.shape[1]) % 3
+        cache: dict = {}
+        for usable in (valid & (rng.random(valid.shape) < 0.7), valid):  # two calls, one cache
+            lazy, _, _ = shortest_path(q, usable, dt, 1.0, circ, node_ok=lambda r, k: ~blocked[r, k], group=group,
+                                       edge_cache=cache, nodes=valid)
+            plain, _, _ = shortest_path(q, usable, dt, 1.0, circ, node_ok=lambda r, k: ~blocked[r, k], group=group)
+            eager = reference_shortest_path(q, usable & ~blocked, dt, 1.0, circ)
+            np.testing.assert_array_equal(lazy.node, eager.node)
+            np.testing.assert_array_equal(lazy.segment, eager.segment)
+            np.testing.assert_array_equal(lazy.node, plain.node)
+            assert lazy.cost == pytest.approx(eager.cost, rel=1e-12, abs=1e-12)
+
+
 def test_reach_cone_keeps_every_path_between_pinned_ends():
     """With the first and last rung pinned to one node each, the search on the nodes inside
     reach_cone finds scipy's shortest path over the whole ladder whenever that one connects the
