@@ -166,9 +166,10 @@ def _search(
             known[row, 0] = 1
     asked_total = 0
     best, whole = None, False
-    # rung i -> its edges to rung i+1 over every IK node of the ladder (whatever is known of collisions
-    # or the reach cone: the runs inside and outside the cone, and every lazy pass, share them)
+    # rung i -> its edges to rung i+1 over every IK node of the ladder, whatever is known of collisions
+    # (every lazy pass and p shares them), and the same over the nodes inside reach_cone
     edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    cone_edges: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     while True:
         redo = np.flatnonzero((solved_at < level) & ~fixed & ~dead)  # refined rungs: IK at the finer θ samples
         if len(redo):
@@ -201,18 +202,18 @@ def _search(
 
         branch = np.arange(8 * p) % 8  # IK branch of each node: collisions mostly follow the branch
 
-        def run(usable: np.ndarray) -> LadderPath:
-            return shortest_path(q, usable, dt, cell.max_joint_speed, circ, cost, weights,
-                                 None if collides is None else node_ok, branch, edges,
-                                 None if memo is None else memo.edges, valid)[0]
+        def run(nodes: np.ndarray, cache: dict) -> LadderPath:
+            return shortest_path(q, nodes & (known >= 0), dt, cell.max_joint_speed, circ, cost, weights,
+                                 None if collides is None else node_ok, branch, cache,
+                                 None if memo is None else memo.edges, nodes)[0]
 
         path = None
         if pinned:  # first the nodes a motion from one pinned end to the other can pass (exact if it exists)
-            path = run(valid & (known >= 0) & reach_cone(q, ends, dt, cell.max_joint_speed, circ))
+            path = run(valid & reach_cone(q, ends, dt, cell.max_joint_speed, circ), cone_edges)
             if (path.node < 0).any() or path.segment[-1] != 0:
                 path = None
         if path is None:
-            path = run(valid & (known >= 0))
+            path = run(valid, edges)
         # breaks in the motion: disconnections between realized waypoints, and skipped waypoints
         # (a dead rung's skip and the split after it are no break a finer ladder could mend)
         rows = np.flatnonzero(path.node >= 0)
@@ -232,7 +233,7 @@ def _search(
         elif not whole and (level < p).any():
             whole = True  # refining the breaks' rungs alone did not help: refine every rung at this p
             level[:] = p
-            edges = {}
+            edges, cone_edges = {}, {}
             continue
         else:
             break  # a denser ladder did not help: the breaks come from the path itself (§4.3.1)
@@ -252,8 +253,8 @@ def _search(
         q, solved, known = finer.reshape(m, 8 * p, 6), finer_ok.reshape(m, 8 * p), finer_known.reshape(m, 8 * p)
         level[refine], whole = p, False
         # edges between two rungs that keep their nodes carry over, renumbered (node s·8+b -> 2s·8+b)
-        edges = {i: (2 * ia - ia % 8, 2 * ib - ib % 8, w) for i, (ia, ib, w) in edges.items()
-                 if not (refine[i] or refine[i + 1])}
+        edges, cone_edges = ({i: (2 * ia - ia % 8, 2 * ib - ib % 8, w) for i, (ia, ib, w) in cache.items()
+                              if not (refine[i] or refine[i + 1])} for cache in (edges, cone_edges))
     _, p, q, valid, path = best
     rows = np.flatnonzero(path.node >= 0)
     chosen = np.full((m, 6), np.nan)
