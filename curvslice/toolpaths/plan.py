@@ -514,16 +514,16 @@ def _layer_toolpaths(k: int, seam: np.ndarray, surfaces: list[trimesh.Trimesh], 
 _CHAIN_SHARES = (0.35, 0.40, 0.25)
 
 
-def _orient_lanes(surfaces: list[trimesh.Trimesh], workers: int) -> list[str]:
+def _orient_lanes(triangles: list[int], workers: int) -> list[str]:
     """The lane (:data:`~curvslice.executors.LANES`) of each layer's orientation under ``chain`` on ``workers``:
     on the workers that prepare (``apart``) but for the last layers', which the chain's worker takes between
     and after its last folds (``chain``) -- as many as balance the lanes' work, estimated from
-    :data:`_CHAIN_SHARES` and the layers' triangles. Dask decides where a task goes once it is ready and a worker
+    :data:`_CHAIN_SHARES` and the layers' ``triangles``. Dask decides where a task goes once it is ready and a worker
     runs whatever it holds while the next fold is on its way: orientations left to Dask went to the chain's
     worker (its queue looked shortest) and each delayed the next fold (bunny: 82 of 131, 14 s of gaps)."""
     p, f, o = _CHAIN_SHARES
     share = min(max((p + o - (workers - 1) * f) / (workers * o), 0.0), 1.0)
-    size = np.array([len(m.faces) for m in surfaces], float)
+    size = np.asarray(triangles, float)
     behind = np.cumsum(size[::-1])[::-1]  # the triangles of a layer and of every later one
     return ["chain" if b <= share * size.sum() and workers > 1 else "apart" for b in behind]
 
@@ -565,7 +565,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
         for k, p in enumerate(prepared):
             previous = ex.submit(_fold_layer, p, previous, settings, priority=2 * n + 1, lane="chain")
             folded.append(previous)
-        lanes = _orient_lanes(cleaned, ex.workers)
+        lanes = _orient_lanes([len(m.faces) for m in cleaned], ex.workers)
         oriented = [ex.submit(_orient_layer, k, f, p, supports=shared_supports, priority=n - k, lane=lane, **shared)
                     for k, (f, p, lane) in enumerate(zip(folded, prepared, lanes))]
     layers = ex.gather(oriented, progress)
