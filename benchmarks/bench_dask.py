@@ -194,9 +194,11 @@ def whole_run(model: Path, settings: Settings, workers: int | None) -> dict:
 
 
 def _same_slice(a, b) -> bool:
-    """The field and every tool-path array equal."""
+    """The field, every tool-path array and the coverage figures of the report equal."""
+    cover = ("coverage_min", "coverage_mean", "overlap_max")
     return np.array_equal(a.results["field"].growing, b.results["field"].growing) and \
-        all(np.array_equal(getattr(a.toolpaths, k), getattr(b.toolpaths, k)) for k in ARRAYS)
+        all(np.array_equal(getattr(a.toolpaths, k), getattr(b.toolpaths, k)) for k in ARRAYS) and \
+        all(a.report["toolpaths"][k] == b.report["toolpaths"][k] for k in cover)
 
 
 def _ratio(runs: list[dict], key: str) -> float:

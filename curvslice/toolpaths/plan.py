@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from curvslice import orientation as ori
 from curvslice.errors import CurvsliceError
-from curvslice.executors import Executor, InProcess
+from curvslice.executors import Executor, InProcess, query_threads
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import fill_slivers, layer_beads, surface_samples
@@ -317,7 +317,7 @@ def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, floa
     closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
     dist = np.abs(q[:, 2])
     for tri_k, tree_k, reach in reversed(earlier):
-        bound = tree_k.query(q, workers=-1)[0] - reach
+        bound = tree_k.query(q, workers=query_threads())[0] - reach
         todo = np.nonzero(bound < dist)[0]
         if len(todo) == 0:
             continue
