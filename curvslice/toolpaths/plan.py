@@ -541,7 +541,7 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     where the previous one ended -- its pieces, then its orientations. Only the concatenation (path
     ids numbered on over the layers) is sequential. On a cluster the chain keeps one worker (lane
     ``chain``) and the rings are made on the others (``apart``), so that no task holds up the next
-    link; the orientations go wherever there is room.
+    link; the orientations run on the others too, but for the last layers' (:func:`_orient_lanes`).
     """
     ex = executor if executor is not None else InProcess()
     cleaned = [clean_surface(mesh) for mesh in surfaces]
