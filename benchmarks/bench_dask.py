@@ -63,7 +63,8 @@ def per_layer_costs(layers, settings) -> dict:
             ends.append((arrays["positions"][0], arrays["positions"][-1]))
         previous = f
     between = [float(np.linalg.norm(b[0] - a[1])) for a, b in zip(ends[:-1], ends[1:])]
-    return {"rule": settings.start_rule, "layers": len(cleaned), "client_s": client, "prepare_s": prep, "fold_s": fold,
+    return {"rule": settings.start_rule, "layers": len(cleaned), "triangles": [len(s.faces) for s in cleaned],
+            "client_s": client, "prepare_s": prep, "fold_s": fold,
             "orient_s": orient, "wall_s": time.perf_counter() - wall, "travel_between_layers_mm": float(np.sum(between))}
 
 
@@ -92,18 +93,19 @@ ROUND_TRIP_S = 0.005
 def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True, lanes: bool = True,
              round_trip: float = ROUND_TRIP_S) -> float:
     """Seconds the tool-path stage takes on ``n`` dedicated workers under the task priorities of
-    :func:`plan_toolpaths` (folds 2, preparations 1, orientations 0; ties in submission order), by list
+    :func:`plan_toolpaths` (folds first, then preparations, then orientations, each kind in layer order), by list
     scheduling the measured per-layer costs (no transfer overhead): a task starts ``round_trip`` after
     its inputs at the earliest, and a free worker starts what it can rather than wait. ``lanes`` (the
-    executor's, ``n`` > 1): the folds on worker 0, the preparations on the others, orientations anywhere;
-    else as Dask places them: a fold where its layer's preparation ran (its largest input), any other task
-    anywhere. ``chained=False``: the ``seam`` rule, one task per layer (its three
-    parts) in submission order on the first free worker."""
+    executor's, ``n`` > 1): the folds on worker 0, the preparations on the others, orientations by
+    :func:`~curvslice.toolpaths.plan._orient_lanes` when ``costs`` has the layers' ``triangles``, else anywhere;
+    without lanes as Dask places them: a fold where its layer's preparation ran (its largest input), any other
+    task anywhere. ``chained=False``: the ``seam`` rule, one task per layer (its three parts), the largest
+    layers first, on the first free worker."""
     prep, fold, orient = ([c * scale for c in costs[k]] for k in ("prepare_s", "fold_s", "orient_s"))
     m = len(prep)
     if not chained:
         free = [0.0] * n
-        for k in range(m):
+        for k in np.argsort(-np.asarray(costs.get("triangles", [0] * m)), kind="stable"):
             w = int(np.argmin(free))
             free[w] += prep[k] + fold[k] + orient[k]
         return max(free) + costs["client_s"] * scale
@@ -114,7 +116,10 @@ def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True, lane
     lanes = lanes and n > 1
     lane = {"fold": [0], "prep": list(range(1, n)), "orient": list(range(n))} if lanes else \
         {kind: list(range(n)) for kind in cost}
-    fold_lane = {}  # without lanes: each fold where its preparation ran
+    placed = {}  # without lanes: each fold where its preparation ran; with them, the orientations'
+    if lanes and "triangles" in costs:
+        placed = {("orient", k): [0] if where == "chain" else lane["prep"]
+                  for k, where in enumerate(tp_plan._orient_lanes(costs["triangles"], n))}
     todo = {(kind, k) for kind in cost for k in range(m)}
     ready_at = {("prep", k): 0.0 for k in range(m)}
     done: dict[tuple[str, int], float] = {}
@@ -122,7 +127,7 @@ def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True, lane
     while todo:
         best = None
         for w in range(n):
-            mine = [t for t in ready_at if w in fold_lane.get(t, lane[t[0]])]
+            mine = [t for t in ready_at if w in placed.get(t, lane[t[0]])]
             if not mine:
                 continue
             start = max(free[w], min(ready_at[t] for t in mine))
@@ -134,7 +139,7 @@ def makespan(costs: dict, n: int, scale: float = 1.0, chained: bool = True, lane
         del ready_at[task]
         done[task] = free[w] = start + cost[task[0]][task[1]]
         if task[0] == "prep" and not lanes:
-            fold_lane[("fold", task[1])] = [w]
+            placed[("fold", task[1])] = [w]
         for after in (("fold", task[1] + 1), ("fold", task[1]), ("orient", task[1])):
             if after in todo and all(d in done for d in need[after[0]](after[1])):
                 ready_at[after] = max(done[d] for d in need[after[0]](after[1])) + round_trip
@@ -189,9 +194,11 @@ def whole_run(model: Path, settings: Settings, workers: int | None) -> dict:
 
 
 def _same_slice(a, b) -> bool:
-    """The field and every tool-path array equal."""
+    """The field, every tool-path array and the coverage figures of the report equal."""
+    cover = ("coverage_min", "coverage_mean", "overlap_max")
     return np.array_equal(a.results["field"].growing, b.results["field"].growing) and \
-        all(np.array_equal(getattr(a.toolpaths, k), getattr(b.toolpaths, k)) for k in ARRAYS)
+        all(np.array_equal(getattr(a.toolpaths, k), getattr(b.toolpaths, k)) for k in ARRAYS) and \
+        all(a.report["toolpaths"][k] == b.report["toolpaths"][k] for k in cover)
 
 
 def _ratio(runs: list[dict], key: str) -> float:

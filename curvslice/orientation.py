@@ -16,6 +16,8 @@ import trimesh
 from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as _closest_on_triangles
 
+from curvslice.executors import query_threads
+
 
 def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | None = None,
                    candidates: int = 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -28,7 +30,7 @@ def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | No
     tri = np.asarray(triangles, np.float64).reshape(-1, 3, 3)
     tree = tree if tree is not None else cKDTree(tri.mean(axis=1))
     k = min(candidates, len(tri))
-    _, idx = tree.query(pts, k=k, workers=-1)
+    _, idx = tree.query(pts, k=k, workers=query_threads())
     idx = idx.reshape(len(pts), k)
     cand = _closest_on_triangles(tri[idx.ravel()], np.repeat(pts, k, axis=0)).reshape(len(pts), k, 3)
     dist = np.linalg.norm(cand - pts[:, None, :], axis=2)

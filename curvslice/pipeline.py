@@ -329,8 +329,9 @@ def run_toolpaths(ctx: Context) -> ToolpathsResult:
     if not len(tp.positions):
         raise CurvsliceError(f"no tool-path fits on any of the {len(layers)} layers (every region is narrower than "
                              f"the path width {settings.path_width:g} mm): choose a smaller --voxel or --path-width")
-    cover = [layer_cover(m, tp.positions[tp.layer == i], tp.path[tp.layer == i], settings.path_width, seed=i,
-                         bead=tp.bead[tp.layer == i]) for i, m in enumerate(layers, start=1) if len(m.faces)]
+    own = [(i, m, tp.layer == i) for i, m in enumerate(layers, start=1) if len(m.faces)]
+    cover = ctx.executor.map(_layer_cover, [(i, m, tp.positions[at], tp.path[at], tp.bead[at]) for i, m, at in own],
+                             width=settings.path_width)
     rows = tp.layers
     report = {
         "path_width_mm": settings.path_width, "samples": len(tp.positions), "pieces": sum(r["pieces"] for r in rows),
@@ -349,6 +350,13 @@ def run_toolpaths(ctx: Context) -> ToolpathsResult:
         print(f"toolpaths: {report['samples']} samples, {report['pieces']} pieces ({report['jumps']} jumps), coverage "
               f"min {100 * report['coverage_min']:.1f}% mean {100 * report['coverage_mean']:.1f}% ({seconds:.1f} s)")
     return ToolpathsResult(tp, settings, report)
+
+
+def _layer_cover(layer: tuple[int, trimesh.Trimesh, np.ndarray, np.ndarray, np.ndarray], width: float) -> tuple[float, float]:
+    """:func:`~curvslice.verify.toolpaths.layer_cover` of one layer ``(number, mesh, positions, path, bead)``: a
+    task of its own on the executor (it ran in the client, one layer after the other, after the stage)."""
+    i, mesh, positions, path, bead = layer
+    return layer_cover(mesh, positions, path, width, seed=i, bead=bead)
 
 
 def run_robot(ctx: Context) -> RobotResult:

@@ -10,6 +10,7 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from curvslice.executors import query_threads
 from curvslice.orientation import closest_points
 from curvslice.toolpaths.constants import (BEAD_RANGE, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
                                            OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS, SEAM_CHORD)
@@ -98,7 +99,7 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     own = concat_ranges(stop[short] - counts[short], counts[short])
     reach = float(half.max())
     short_tree = cKDTree(pts[own])
-    close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=-1)[0]))[0]
+    close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=query_threads())[0]))[0]
     under = short_tree.sparse_distance_matrix(cKDTree(samples[close]), reach, output_type="coo_matrix")
     near = close[np.unique(under.col[under.data <= half[own][under.row]])]
     if len(near) == 0:
@@ -256,7 +257,7 @@ class _Owners:
 
     def add(self, fine: list[np.ndarray]) -> None:
         if fine and len(self.x):
-            d, j = cKDTree(np.vstack(fine)).query(self.x, workers=-1)
+            d, j = cKDTree(np.vstack(fine)).query(self.x, workers=query_threads())
             better = d < self.d
             self.d[better], self.j[better] = d[better], sum(len(p) for p in self.fine) + j[better]
         self.fine = self.fine + list(fine)
@@ -271,7 +272,7 @@ class _Owners:
         out.fine, out.d, out.j = [self.fine[i] for i in indices], self.d.copy(), renumber[self.j]
         orphan = np.nonzero(out.j < 0)[0]
         if len(orphan):
-            out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=-1)
+            out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=query_threads())
         return out
 
 
@@ -287,7 +288,7 @@ def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], w
     dense = np.vstack(dense)
     pts, half = dense[:, :3], 0.5 * dense[:, 3]
     tree = cKDTree(pts)
-    d, j = tree.query(x, workers=-1)
+    d, j = tree.query(x, workers=query_threads())
     near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="coo_matrix")
     inside = near.data <= half[near.col]
     beads = np.bincount(np.unique(near.row[inside] * len(pieces) + label[near.col[inside]]) // len(pieces),
@@ -308,7 +309,7 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     label = piece_labels(pieces)
     key = np.concatenate([np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))] for p in pieces])
     tree = cKDTree(pts)
-    d, j = tree.query(x, workers=-1)
+    d, j = tree.query(x, workers=query_threads())
     sliver = (d > half[j]) & (d <= half[j] + (OPEN_GAP - 0.5) * width)
     if not sliver.any():
         return widths

@@ -8,6 +8,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
 from scipy.spatial import cKDTree
 
+from curvslice.executors import query_threads
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (BEAD_MIN, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
                                            DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, OPEN_GAP, RIDGE_FLOOR,
@@ -121,7 +122,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     else:
         widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
         dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(pieces, widths)])
-        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=-1)
+        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=query_threads())
         open_v = gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
     ring = np.roll(faces, -1, axis=1)
     inside = open_v[faces] & open_v[ring]

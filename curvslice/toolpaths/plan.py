@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from curvslice import orientation as ori
 from curvslice.errors import CurvsliceError
-from curvslice.executors import Executor, InProcess
+from curvslice.executors import Executor, InProcess, query_threads
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import fill_slivers, layer_beads, surface_samples
@@ -317,7 +317,7 @@ def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, floa
     closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
     dist = np.abs(q[:, 2])
     for tri_k, tree_k, reach in reversed(earlier):
-        bound = tree_k.query(q, workers=-1)[0] - reach
+        bound = tree_k.query(q, workers=query_threads())[0] - reach
         todo = np.nonzero(bound < dist)[0]
         if len(todo) == 0:
             continue
@@ -509,6 +509,25 @@ def _layer_toolpaths(k: int, seam: np.ndarray, surfaces: list[trimesh.Trimesh], 
     return _orient_layer(k, folded, prepared, surfaces, supports, settings)
 
 
+#: CPU shares of a layer's preparation, fold and orientation under ``chain`` (bunny 1.0 mm, 131 layers:
+#: 17.5, 20.1 and 12.2 s, benchmarks/SCALING.md), for :func:`_orient_lanes`' estimate.
+_CHAIN_SHARES = (0.35, 0.40, 0.25)
+
+
+def _orient_lanes(triangles: list[int], workers: int) -> list[str]:
+    """The lane (:data:`~curvslice.executors.LANES`) of each layer's orientation under ``chain`` on ``workers``:
+    on the workers that prepare (``apart``) but for the last layers', which the chain's worker takes between
+    and after its last folds (``chain``) -- as many as balance the lanes' work, estimated from
+    :data:`_CHAIN_SHARES` and the layers' ``triangles``. Dask decides where a task goes once it is ready and a worker
+    runs whatever it holds while the next fold is on its way: orientations left to Dask went to the chain's
+    worker (its queue looked shortest) and each delayed the next fold (bunny: 82 of 131, 14 s of gaps)."""
+    p, f, o = _CHAIN_SHARES
+    share = min(max((p + o - (workers - 1) * f) / (workers * o), 0.0), 1.0)
+    size = np.asarray(triangles, float)
+    behind = np.cumsum(size[::-1])[::-1]  # the triangles of a layer and of every later one
+    return ["chain" if b <= share * size.sum() and workers > 1 else "apart" for b in behind]
+
+
 def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings = ToolpathSettings(),
                    progress=None, executor: Executor | None = None) -> Toolpaths:
     """Tool-paths, orientations and extrusion for working surfaces in print order (§3.5.1-3.5.2).
@@ -522,25 +541,33 @@ def plan_toolpaths(surfaces: list[trimesh.Trimesh], settings: ToolpathSettings =
     where the previous one ended -- its pieces, then its orientations. Only the concatenation (path
     ids numbered on over the layers) is sequential. On a cluster the chain keeps one worker (lane
     ``chain``) and the rings are made on the others (``apart``), so that no task holds up the next
-    link; the orientations go wherever there is room.
+    link; the orientations run on the others too, but for the last layers' (:func:`_orient_lanes`).
     """
     ex = executor if executor is not None else InProcess()
     cleaned = [clean_surface(mesh) for mesh in surfaces]
     supports = [layer_support(surface) for surface in cleaned]
     shared = {"surfaces": ex.share(cleaned), "settings": settings}
     shared_supports = ex.share(supports)
+    n = len(cleaned)
     if settings.start_rule == "seam":
         seam = seam_point(cleaned)
-        oriented = [ex.submit(_layer_toolpaths, k, seam, supports=shared_supports, **shared) for k in range(len(cleaned))]
+        # the largest layers first, so that no large one is left for the end while the other workers idle
+        rank = np.argsort(np.argsort([len(m.faces) for m in cleaned], kind="stable"), kind="stable")
+        oriented = [ex.submit(_layer_toolpaths, k, seam, supports=shared_supports, priority=int(rank[k]), **shared)
+                    for k in range(n)]
     else:
-        prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=1, lane="apart", **shared)
-                    for k in range(len(cleaned))]
+        # priorities (higher first, Dask's order on a worker): a fold above all, then the preparations in layer
+        # order (the chain takes them in that order: ties would run in Dask's own order and let a fold wait
+        # behind later layers'), then the orientations in layer order
+        prepared = [ex.submit(_prepare_layer, k, supports=shared_supports, priority=2 * n - k, lane="apart", **shared)
+                    for k in range(n)]
         folded, previous = [], None
         for k, p in enumerate(prepared):
-            previous = ex.submit(_fold_layer, p, previous, settings, priority=2, lane="chain")
+            previous = ex.submit(_fold_layer, p, previous, settings, priority=2 * n + 1, lane="chain")
             folded.append(previous)
-        oriented = [ex.submit(_orient_layer, k, f, p, supports=shared_supports, **shared)
-                    for k, (f, p) in enumerate(zip(folded, prepared))]
+        lanes = _orient_lanes([len(m.faces) for m in cleaned], ex.workers)
+        oriented = [ex.submit(_orient_layer, k, f, p, supports=shared_supports, priority=n - k, lane=lane, **shared)
+                    for k, (f, p, lane) in enumerate(zip(folded, prepared, lanes))]
     layers = ex.gather(oriented, progress)
     out: dict[str, list[np.ndarray]] = {k: [] for k in ("positions", "normals", "layer", "path", "thickness", "bead")}
     per_layer: list[dict[str, float]] = []

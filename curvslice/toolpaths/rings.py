@@ -16,6 +16,7 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from curvslice.executors import query_threads
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (BEAD_MIN, BEAD_RANGE, CENTRE_BIN, DENSE_STEP, DOT_RING, FIRST_LEVEL, GAP_LEVELS,
                                            ISLAND_RISE, PEAK_RISE, ROUND_RING,
@@ -215,7 +216,7 @@ def contour_gap(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, width
     for r in rings:
         by_level.setdefault(r.level, []).append(resample(np.vstack([r.points, r.points[:1]]), DENSE_STEP * width))
     ordered = [np.vstack(by_level[k]) for k in sorted(by_level)]
-    gaps = [cKDTree(a).query(b, workers=-1)[0] for a, b in zip(ordered[:-1], ordered[1:])]
+    gaps = [cKDTree(a).query(b, workers=query_threads())[0] for a, b in zip(ordered[:-1], ordered[1:])]
     return float(np.median(np.concatenate(gaps))) / width if gaps else 1.0
 
 
