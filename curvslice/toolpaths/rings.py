@@ -68,15 +68,14 @@ class Ring:
         return rise if self.round else min(rise, 0.5 * self.breadth)
 
 
-def thin_rise(floor: float, width: float) -> float:
+def thin_rise(floor: float | np.ndarray, width: float) -> float | np.ndarray:
     """:attr:`Ring.rise` below which a ring is a thin loop, printed as one pass down its middle.
 
     Each side of a loop owns half a width outside it and the rise ``r`` inside (half the breadth
     of a strip), a bead of ``w/2 + r``; no bead is narrower than ``floor`` (the layer thickness, in
     widths), so below ``r = (floor − ½)·w`` the sides' beads overlap, while one centre pass spans
     ``2r + w`` ≤ ``2·floor·w`` (0.3 w at the default thickness 0.8 w: a strip 0.6 w broad)."""
-    return max(floor - 0.5, 0.0) * width
-
+    return np.maximum(floor - 0.5, 0.0) * width
 
 
 def lone_thin_loop(ring: Ring, width: float) -> bool:
@@ -400,7 +399,7 @@ def _pinch(ring: Ring, width: float,
     total = s[-1] + np.linalg.norm(q[0] - q[-1])
     floor = np.maximum(min_bead(q) / width, BEAD_MIN) if min_bead is not None else np.full(n, BEAD_MIN)
     # the widest centre bead d + 1 w may leave a hairline either side
-    reach = np.minimum(2.0 * np.maximum(floor - 0.5, 0.0), BEAD_RANGE[1] + 2.0 * (OPEN_GAP - 0.5) - 1.0) * width
+    reach = np.minimum(2.0 * thin_rise(floor, width), (BEAD_RANGE[1] + 2.0 * (OPEN_GAP - 0.5) - 1.0) * width)
     if reach.max() <= 0:
         return None
     pairs = cKDTree(q).query_pairs(float(reach.max()), output_type="ndarray")

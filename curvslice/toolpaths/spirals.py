@@ -349,6 +349,15 @@ class _Builder:
                 sharp = np.maximum(sharp, corner - _turn_cos(ring, cum, s, self.w))
         return sharp
 
+    def _thin_leaf(self, ring_id: int) -> bool:
+        """Whether ``ring_id`` alone makes a thin loop's centre line (:func:`~curvslice.toolpaths.rings.lone_thin_loop`,
+        hosting nothing): spliced into a host, the walk would go out along the line and come back beside
+        it over its whole length (cow 0.8 layer 110: a strip's line 7 w long), so it is a piece of its own."""
+        comp = self.tree.child_comp.get(ring_id)
+        ring = self.tree.rings[ring_id]
+        return (not self.tree.child_rings.get(comp, []) and ring.length >= DOT_RING * self.w
+                and lone_thin_loop(ring, self.w))
+
     def _separate(self, ring_id: int) -> None:
         self.failed += 1
         first = self.tree.rings[ring_id].points[0]
@@ -365,6 +374,9 @@ class _Builder:
         placed: list[tuple[float, int]] = []  # (offset along the walk, child)
         shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
         for child in children:
+            if self._thin_leaf(child):  # its centre line's two ends lie apart: the link back would run along it
+                self.extra_pieces.append(loop_centre_line(self.tree.rings[child].points))
+                continue
             # where the child's cut line meets the host (its outermost cut, next to the host)
             s_child, dist = _closest_s(ring, self.cut_line(self.chain_from(child), self._nearest_point(child, ring), spliced=True)[0])
             offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
