@@ -352,24 +352,26 @@ def split_pinches(rings: list[Ring], width: float,
     comp = max([max(r.below, r.above) for r in rings], default=-1) + 1
     todo = list(rings)
     while todo:
-        ring = todo.pop()
+        ring = todo.pop(0)  # (in order: the spirals pick among equal rings by it)
         cut = _pinch(ring, width, min_bead)
         if cut is None:
             out.append(ring)
             continue
         loops, line = cut
-        lines.append(line)
         kept = [p for p in loops if _spirals(p, width, min_bead)]
         if not kept:  # a thin loop but for its tips: the thin-loop rules print it
-            lines.pop()
             out.append(ring)
             continue
         for p in loops:
-            if not _spirals(p, width, min_bead):  # a tip: the centre line's end nearest to it reaches its far point
-                line = lines[-1]
+            if any(p is k for k in kept):
+                continue
+            if Ring(0.0, p, 0, 0).length >= 2.0 * DOT_RING * width:  # a thin loop: its own centre line
+                lines.append(loop_centre_line(p))
+            else:  # a tip: the centre line's end nearest to it reaches its far point
                 at_start = np.linalg.norm(p - line[0], axis=1).min() < np.linalg.norm(p - line[-1], axis=1).min()
                 tip = p[np.argmax(np.linalg.norm(p - (line[0] if at_start else line[-1]), axis=1))]
-                lines[-1] = np.vstack([tip, line]) if at_start else np.vstack([line, tip])
+                line = np.vstack([tip, line]) if at_start else np.vstack([line, tip])
+        lines.append(line)
         new = [Ring(ring.level, p, ring.below, ring.above, ring.top, ring.floor) for p in kept]
         if len(new) == 2:  # a neck: the far loop is a region of its own (a splice would run down the neck)
             new[1].below, new[1].above = comp, comp + 1
