@@ -75,9 +75,9 @@ CENTRE_BIN = 0.5
 #: peninsula).
 PINCH_ALONG = 2.0
 #: ... and a pinch is cut out only where its sides run close over at least this many widths: a centre
-#: line's two round caps meet the loops closed across its ends, which a shorter pinch does not repay
-#: (1 w against 2 w: cow 0.8 layer 110 9.7 vs 8.2 % overlap, layer 26 3.7 vs 1.9 %, kitten 0.8 layer 89
-#: 3.1 vs 2.9 %, bunny 1.0 layer 15 3.6 vs 3.3 %; rocker-arm 0.8 layer 125 2.2 % either way).
+#: line's round caps meet the loops closed across its ends, which a shorter pinch does not repay (with
+#: every ring cut, 1 w against 2 w: cow 0.8 layer 110 9.7 vs 8.2 %, kitten 0.8 layer 89 3.1 vs 2.9 %);
+#: 3 w left most of the gain (rocker-arm 0.8 layer 82: 4.9 vs 2.6 %, layer 125: 3.8 vs 2.1 %).
 PINCH_LENGTH = 2.0
 
 # ----------------------------------------------------------------------------- Fermat spirals (spirals.py)
