@@ -332,14 +332,15 @@ def split_pinches(rings: list[Ring], width: float,
     of ``d`` on each side's bead: :func:`thin_rise` applied along the ring instead of to its mean
     breadth. Where ``d/2`` is below ``thin_rise(floor)`` (``floor`` the local layer thickness,
     ``min_bead(points)``, in widths) the two beads overlap whatever their fit, as the sides of a thin
-    loop do (rocker-arm 0.8 layers 82 and 125: inner rings whose sides run 0.6-0.9 w apart along arms
-    under two beads wide, beads of 1.0 w: 5.1 → 2.6 % and 5.8 → 2.1 %), and one pass down the middle covers the
-    strip with one bead ``d + 1`` widths wide -- while that is at most the widest bead plus the
-    hairline either side (``d ≤ BEAD_RANGE[1] + 2·(OPEN_GAP − ½) − 1`` widths). The ring is cut at
-    both ends of the pinch into the two loops on either side (each closed across the neck), the
-    pinched sides become their centre line; a loop too small to spiral (shorter than ``DOT_RING``
-    widths or itself thin) is, when shorter than ``2·DOT_RING`` widths (the tip of a peninsula), left to
-    the centre line's end, which the bead fit lengthens to it, else printed by its own centre line. Sides count as across when they lie more than ``PINCH_ALONG`` widths apart
+    loop do (rocker-arm 0.8 layers 82 and 125: inner rings whose sides run 0.6-0.9 w apart along
+    arms under two beads wide, beads of 1.0 w: 5.1 → 2.6 % and 5.8 → 2.1 %), and one pass down the
+    middle covers the strip with one bead ``d + 1`` widths wide -- while that is at most the widest
+    bead plus the hairline either side (``d ≤ BEAD_RANGE[1] + 2·(OPEN_GAP − ½) − 1`` widths). The
+    ring is cut at both ends of the pinch into the two loops on either side (each closed across the
+    neck), the pinched sides become their centre line; a loop too small to spiral (shorter than
+    ``DOT_RING`` widths or itself thin) is, when shorter than ``2·DOT_RING`` widths (the tip of a
+    peninsula), left to the centre line's end, which the bead fit lengthens to it, else printed by
+    its own centre line. Sides count as across when they lie more than ``PINCH_ALONG`` widths apart
     along the ring (nearer, they are a corner's two legs), and a pinch only when they run that close
     over ``PINCH_LENGTH`` widths. Only rings with a ring outside them are cut: the outermost ring's beads
     lay their excess over the layer's edge (:func:`~curvslice.toolpaths.beads.fit_beads`), and cutting
@@ -379,7 +380,8 @@ def split_pinches(rings: list[Ring], width: float,
                 if ring.above in (r.below, r.above):
                     near = [cKDTree(n.points).query(r.points)[0].min() for n in new]
                     if near[1] < near[0]:
-                        r.below, r.above = (comp + 1 if r.below == ring.above else r.below), (comp + 1 if r.above == ring.above else r.above)
+                        r.below = comp + 1 if r.below == ring.above else r.below
+                        r.above = comp + 1 if r.above == ring.above else r.above
             comp += 2
         todo.extend(new)
     return out, lines
