@@ -1,5 +1,6 @@
-"""Rings cut where they pinch (curvslice.toolpaths.rings.split_pinches): a neck or a peninsula of a
-layer narrower than two beads gets one pass down its middle, not a ring's two sides over each other."""
+"""Rings cut where they pinch (curvslice.toolpaths.rings.split_pinches): a peninsula of a layer
+narrower than two beads gets one pass down its middle, not a ring's two sides over each other; a neck
+between two wide lobes is left to its ring."""
 
 from __future__ import annotations
 
@@ -38,9 +39,15 @@ def _floor(points: np.ndarray) -> np.ndarray:
     return np.full(len(points), FLOOR * WIDTH)
 
 
-@pytest.mark.parametrize("shape", sorted(SHAPES))
+def test_a_neck_is_left_to_its_ring():
+    """Both loops of the neck's inner ring are wide: cut, the far one would be a region of its own."""
+    r = layer_rings(polygon_mesh(SHAPES["neck"], 0.2), WIDTH, _floor)
+    assert sum(_crossings(g.points, CROSS_X, True) for g in r.rings) == 4 and not r.lines
+
+
+@pytest.mark.parametrize("shape", ["peninsula"])
 def test_a_pinch_gets_one_pass_and_no_ring_lies_over_itself(shape, monkeypatch):
-    """Across the middle of the neck (peninsula) three passes run -- the outer ring's two sides along
+    """Across the middle of the peninsula three passes run -- the outer ring's two sides along
     its edges and one down its middle: the crossings of that section by the rings and centre lines,
     counted on their geometry -- and no ring's two sides (points more than ``PINCH_ALONG`` widths
     apart along it) come closer than twice the thin-loop rise of the floor, the spacing below which

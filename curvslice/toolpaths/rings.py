@@ -326,9 +326,9 @@ def centre_line(points: np.ndarray, width: float) -> np.ndarray:
 
 def split_pinches(rings: list[Ring], width: float,
                   min_bead: Callable[[np.ndarray], np.ndarray] | None = None) -> tuple[list[Ring], list[np.ndarray]]:
-    """Rings cut where they pinch, and one centre pass through each pinch.
+    """Rings cut where they pinch along a peninsula, and one centre pass through each pinch.
 
-    A ring's two sides across a neck or along a peninsula of the layer lie ``d`` apart with half
+    A ring's two sides along a peninsula (or across a neck) of the layer lie ``d`` apart with half
     of ``d`` on each side's bead: :func:`thin_rise` applied along the ring instead of to its mean
     breadth. Where ``d/2`` is below ``thin_rise(floor)`` (``floor`` the local layer thickness,
     ``min_bead(points)``, in widths) the two beads overlap whatever their fit, as the sides of a thin
@@ -336,21 +336,21 @@ def split_pinches(rings: list[Ring], width: float,
     arms under two beads wide, beads of 1.0 w: 5.1 → 2.6 % and 5.8 → 2.1 %), and one pass down the
     middle covers the strip with one bead ``d + 1`` widths wide -- while that is at most the widest
     bead plus the hairline either side (``d ≤ BEAD_RANGE[1] + 2·(OPEN_GAP − ½) − 1`` widths). The
-    ring is cut at both ends of the pinch into the two loops on either side (each closed across the
-    neck), the pinched sides become their centre line; a loop too small to spiral (shorter than
-    ``DOT_RING`` widths or itself thin) is, when shorter than ``2·DOT_RING`` widths (the tip of a
-    peninsula), left to the centre line's end, which the bead fit lengthens to it, else printed by
-    its own centre line. Sides count as across when they lie more than ``PINCH_ALONG`` widths apart
+    ring is cut at both ends of the pinch: the pinched sides become their centre line, the loop on the
+    wide side stays a ring (closed across the pinch), and the loop on the narrow side -- the tip of a
+    peninsula, too small to spiral (shorter than ``DOT_RING`` widths or itself thin) -- is left to the
+    centre line's end, which the bead fit lengthens to it, or, from ``2·DOT_RING`` widths long, printed
+    by its own centre line. A neck (both loops wide) is left whole: its far loop would be a region of
+    its own, two more pieces and four caps at the neck's ends (kitten 0.8 at 1.5 w, layer 81: 3.5 →
+    5.2 %). Sides count as across when they lie more than ``PINCH_ALONG`` widths apart
     along the ring (nearer, they are a corner's two legs), and a pinch only when they run that close
     over ``PINCH_LENGTH`` widths. Only rings with a ring outside them are cut: the outermost ring's beads
     lay their excess over the layer's edge (:func:`~curvslice.toolpaths.beads.fit_beads`), and cutting
     it only added the centre line's caps (rocker-arm 0.8 layers 50 and 101, 17 and 15 w²: 1.9 → 5.2 %
-    and 2.6 → 6.3 %). Rings a neck splits get their own band component on the far side, and the rings
-    that bound it go with the loop nearer to them.
+    and 2.6 → 6.3 %).
     """
     out: list[Ring] = []
     lines: list[np.ndarray] = []
-    comp = max([max(r.below, r.above) for r in rings], default=-1) + 1
     todo = list(rings)
     while todo:
         ring = todo.pop(0)  # (in order: the spirals pick among equal rings by it)
@@ -360,7 +360,7 @@ def split_pinches(rings: list[Ring], width: float,
             continue
         loops, line = cut
         kept = [p for p in loops if _spirals(p, width, min_bead)]
-        if not kept:  # a thin loop but for its tips: the thin-loop rules print it
+        if len(kept) != 1:  # a thin loop but for its tips (the thin-loop rules print it), or a neck
             out.append(ring)
             continue
         for p in loops:
@@ -373,16 +373,7 @@ def split_pinches(rings: list[Ring], width: float,
                 tip = p[np.argmax(np.linalg.norm(p - (line[0] if at_start else line[-1]), axis=1))]
                 line = np.vstack([tip, line]) if at_start else np.vstack([line, tip])
         lines.append(line)
-        new = [Ring(ring.level, p, ring.below, ring.above, ring.top, ring.floor) for p in kept]
-        if len(new) == 2:  # a neck: the far loop is a region of its own (a splice would run down the neck)
-            new[1].below, new[1].above = comp, comp + 1
-            for r in todo + out:
-                if ring.above in (r.below, r.above):
-                    near = [cKDTree(n.points).query(r.points)[0].min() for n in new]
-                    if near[1] < near[0]:
-                        r.below = comp + 1 if r.below == ring.above else r.below
-                        r.above = comp + 1 if r.above == ring.above else r.above
-            comp += 2
+        new = [Ring(ring.level, kept[0], ring.below, ring.above, ring.top, ring.floor)]
         todo.extend(new)
     return out, lines
 
