@@ -24,7 +24,7 @@ from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, F
                                            THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
 from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
 from curvslice.toolpaths.resampling import extrusion_amounts, resample
-from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands
+from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands, split_pinches
 from curvslice.toolpaths.spirals import connected_spirals
 from curvslice.toolpaths.stacked import piece_labels
 
@@ -175,7 +175,8 @@ def layer_rings(mesh: trimesh.Trimesh, width: float,
     for r in rings:
         r.top, r.floor = float(bands.top[r.above]), floor_of(r.points)
     extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor_of)
-    rings += extra
+    rings, necks = split_pinches(rings + extra, width, min_bead)
+    lines += necks
     return LayerRings(surface, v, f, bridged, rings, lines, thin, closed, top, surface_samples(surface, width))
 
 

@@ -15,8 +15,9 @@ import numpy as np
 import shapely
 from scipy.spatial import ConvexHull, cKDTree
 
-from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, CUT_STEP, DOT_RING, FIRST_LEVEL,
+from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, CUT_STEP, DENSE_STEP, DOT_RING, FIRST_LEVEL,
                                            OPEN_GAP, SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS)
+from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.rings import Ring, lone_thin_loop, loop_centre_line, thin_rise
 
 
@@ -216,6 +217,7 @@ class _Builder:
         self.extra_pieces: list[np.ndarray] = []
         self.splices = 0
         self.failed = 0
+        self._ring_points: tuple[_Tree, cKDTree, np.ndarray] | None = None  # every ring's points, for _link_crosses
 
     def chain_from(self, ring_id: int) -> list[int]:
         chain = [ring_id]
@@ -284,7 +286,7 @@ class _Builder:
                 start, end, direction = s - g / 2, s + g / 2, -1
             else:
                 start, end, direction = s + g / 2, s - g / 2, +1
-            arcs.append(self._ring_walk(ring, start, end, direction, hosted.get(k, []), s))
+            arcs.append(self._ring_walk(ring, chain[k], start, end, direction, hosted.get(k, []), s))
         return np.vstack(arcs)
 
     def cut_line(self, chain: list[int], anchor: np.ndarray, spliced: bool = False) -> list[np.ndarray]:
@@ -349,14 +351,44 @@ class _Builder:
                 sharp = np.maximum(sharp, corner - _turn_cos(ring, cum, s, self.w))
         return sharp
 
+    def _thin_leaf(self, ring_id: int) -> bool:
+        """Whether ``ring_id`` alone makes a thin loop's centre line (:func:`~curvslice.toolpaths.rings.lone_thin_loop`,
+        hosting nothing): spliced into a host, the walk would go out along the line and come back beside
+        it over its whole length (cow 0.8 layer 110: a strip's line 7 w long), so it is a piece of its own."""
+        comp = self.tree.child_comp.get(ring_id)
+        ring = self.tree.rings[ring_id]
+        return (not self.tree.child_rings.get(comp, []) and ring.length >= DOT_RING * self.w
+                and lone_thin_loop(ring, self.w))
+
     def _separate(self, ring_id: int) -> None:
         self.failed += 1
         first = self.tree.rings[ring_id].points[0]
         self.extra_pieces.append(self.piece(ring_id, first, None))
 
-    def _ring_walk(self, ring: Ring, start: float, end: float, direction: int,
+    def _link_crosses(self, a: np.ndarray, b: np.ndarray, own: tuple[int, int]) -> bool:
+        """Whether a splice link from ``a`` (on the host) to ``b`` (the child's cut) runs over another ring
+        of the tree than its ``own`` two: its points more than half a width from both ends come within
+        half a width of one (inside that ring's bead). Such a link crosses a region printed by other
+        passes (cow 0.8 layer 110: two lobes spliced across the strip between them, whose centre pass it
+        crossed)."""
+        length = float(np.linalg.norm(b - a))
+        if length <= self.w:
+            return False
+        t = np.arange(0.5 * self.w, length - 0.5 * self.w, DENSE_STEP * self.w) / length
+        if not len(t):
+            return False
+        if self._ring_points is None or self._ring_points[0] is not self.tree:
+            dense = [resample(np.vstack([r.points, r.points[:1]]), DENSE_STEP * self.w) for r in self.tree.rings]
+            owner = np.repeat(np.arange(len(dense)), [len(d) for d in dense])
+            self._ring_points = (self.tree, cKDTree(np.vstack(dense)), owner)
+        _, tree, owner = self._ring_points
+        near = tree.query_ball_point(a + t[:, None] * (b - a), 0.5 * self.w)
+        return any(o not in own for o in {int(owner[j]) for hits in near for j in hits})
+
+    def _ring_walk(self, ring: Ring, host: int, start: float, end: float, direction: int,
                    children: list[int], cut: float) -> np.ndarray:
-        """Walk ``ring`` from ``start`` to ``end`` splicing in the spirals of ``children``."""
+        """Walk ``ring`` (ring ``host`` of the tree, perhaps reversed) from ``start`` to ``end`` splicing in
+        the spirals of ``children``."""
         total = ring.length
         span = (end - start) % total if direction > 0 else (start - end) % total
         g = self.gap
@@ -365,8 +397,12 @@ class _Builder:
         placed: list[tuple[float, int]] = []  # (offset along the walk, child)
         shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
         for child in children:
+            if self._thin_leaf(child):  # its centre line's two ends lie apart: the link back would run along it
+                self.extra_pieces.append(loop_centre_line(self.tree.rings[child].points))
+                continue
             # where the child's cut line meets the host (its outermost cut, next to the host)
-            s_child, dist = _closest_s(ring, self.cut_line(self.chain_from(child), self._nearest_point(child, ring), spliced=True)[0])
+            cut_point = self.cut_line(self.chain_from(child), self._nearest_point(child, ring), spliced=True)[0]
+            s_child, dist = _closest_s(ring, cut_point)
             offset = (s_child - start) % total if direction > 0 else (start - s_child) % total
             taken = [o for o, _ in placed]
             ok_pos = None
@@ -375,7 +411,8 @@ class _Builder:
                 if g <= o <= span - g and all(abs(o - t) >= 2 * g for t in taken):
                     ok_pos = o
                     break
-            if ok_pos is None or dist > SPLICE_REACH * self.w:
+            if ok_pos is None or dist > SPLICE_REACH * self.w or self._link_crosses(
+                    _point_at(closed, cum, s_child), cut_point, (host, child)):
                 self._separate(child)
                 continue
             placed.append((ok_pos, child))
