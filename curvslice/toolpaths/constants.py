@@ -219,6 +219,14 @@ SAME_PASS_BEADS = 2.0
 #: takes (a bead apart, the caps touch and leave ``(1 - π/4)·b²`` open; at 0.6 b the lens is 0.19 b²
 #: larger than the wedges).
 SEAM_CHORD = float(np.pi / 4.0)
+#: :func:`~curvslice.toolpaths.beads.trim_ends`: a bead lies ahead of a pass end when it lies within this
+#: angle (rad) of the end's direction; beside it (a parallel pass, 90°) trimming the end would not help.
+AHEAD_ANGLE = float(np.pi / 3.0)
+#: How deep (in its beads) a pass end's round cap may run into the bead ahead of it: where a cap of
+#: radius r ends h from a straight bead side, moving it on opens b·dh of the strip behind and covers
+#: 2·sqrt(r² − h²)·dh twice, so open + twice-covered area is least at h = (√3/2)·r: the cap runs
+#: (1 − √3/2)·r = 0.067 b in (:func:`~curvslice.toolpaths.beads.trim_ends`; cf. ``SEAM_CHORD``).
+END_DEPTH = float((1.0 - np.sqrt(3.0) / 2.0) / 2.0)
 
 # ----------------------------------------------------------------------------- re-sampling (resampling.py)
 

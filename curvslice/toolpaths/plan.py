@@ -202,7 +202,7 @@ def _beaded_pieces(r: LayerRings, width: float, start: np.ndarray | None = None,
         return LayerPaths(pieces=[]), []
     surface, v, f, bridged, rings, lines, thin, closed, top = (r.surface, r.v, r.f, r.bridged, r.rings, r.lines,
                                                                r.thin, r.closed, r.top)
-    spirals, regions, splices, failed = connected_spirals(rings, width, start)
+    spirals, regions, splices, failed = connected_spirals(rings, width, start, r.samples[0][r.samples[2]])
     out = LayerPaths(pieces=spirals + lines, rings=len(rings), regions=regions + len(lines) + len(thin),
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))

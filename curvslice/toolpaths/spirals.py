@@ -108,27 +108,28 @@ def _dot_centre(ring: Ring) -> np.ndarray:
     return ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
 
 
-def _dot_chord(ring: Ring, width: float, anchor: np.ndarray) -> np.ndarray:
-    """A lone dot's pass: chords across its blob in the plane of its ring, parallel to the edge of the
-    ring's convex hull across which the ring is narrowest (rotating calipers), each from end to end of
-    its share of the hull, walked to and fro from the end nearest to ``anchor`` (where the previous
-    piece ended). The blob's least breadth is twice the reach of its beads: from the ring up to the
-    top of the distance inside it (``Ring.top − level``), plus outwards to the layer's edge (an outermost
-    ring) or to the bead of the ring outside it (a dot nested in a spiral, ½ width; counting the whole
-    top there laid 3 chords over a blob one bead fills, cheburashka 2.5 mm layer 2: 14.1 % overlap): one
-    chord of the widest bead (``BEAD_RANGE``) covers it while that breadth leaves at most one hairline
-    (``OPEN_GAP − ½`` widths, never open) beyond the bead, else ``⌈(2·reach − hairline) / widest⌉`` chords evenly spaced across the ring, each fitted as wide as its
-    share: the bead spans the blob's least breadth and runs along the rest. A chord from one point of
-    the ring to the farthest one ran across an elongated blob (diagonally, a tie between its two ends)
-    and left both ends to gap passes beside it (cow 0.8 layer 14: 10.1 % overlap; the corpus' arch
-    layer 10 flipped between 4.1 and 5.8 % as its vertices moved by 4e-16 mm); one chord across a disc
-    1.85 w broad left its sides open (the corpus' needle at 1.5 mm, layer 20: 94.9 % coverage).
+def _dot_chord(ring: Ring, width: float, anchor: np.ndarray, border: np.ndarray | None = None) -> np.ndarray:
+    """A lone dot's pass: chords across its blob in the plane of its ring, walked to and fro from the end
+    nearest to ``anchor`` (where the previous piece ended). The blob is the ring's convex hull grown by
+    the reach of its beads outwards: to the layer's edge (an outermost ring, ``FIRST_LEVEL`` widths) or to
+    the bead of the ring outside it (a dot nested in a spiral, ½ width). Its least breadth (rotating
+    calipers) is twice the reach of its beads across: from the ring up to the top of the distance inside
+    it (``Ring.top − level``) plus that outward reach; one chord of the widest bead (``BEAD_RANGE``)
+    covers it while that breadth leaves at most one hairline (``OPEN_GAP − ½`` widths, never open) beyond
+    the bead, else ``⌈(2·reach − hairline) / widest⌉`` chords evenly spaced across the ring parallel to its
+    narrowest edge, each spanning its share of the hull (counting the whole top of a nested dot laid 3
+    chords over a blob one bead fills, cheburashka 2.5 mm layer 2: 14.1 % overlap). A chord from one
+    point of the ring to the farthest one ran diagonally across an elongated blob and left both ends to
+    gap passes (cow 0.8 layer 14: 10.1 % overlap; the corpus' arch layer 10 flipped between 4.1 and
+    5.8 % as its vertices moved by 4e-16 mm).
 
-    A round blob's one chord (its breadth the same within a hairline either side whichever way) stays
-    that diameter, from its point nearest its mean to the farthest one: as broad as the widest bead,
-    which way its slivers fall (along flats or across corners) is decided by corners the ring no longer
-    shows (homer 0.8 layer 62, an octagon 1.6 w across: 94.9 % coverage along its flats, 97.4 % across
-    its corners; the corpus' needle the other way round), and the diameter passed both."""
+    One chord is the centre line of the hull's cross-sections (:func:`_centre_line`), bending where the
+    blob's sides slant, so its bead spans each cross-section and its round ends reach the corners: of the
+    directions of the hull's edges and of its vertices from its centre, the one whose bead (half the
+    widest, round ends) covers most of the blob. A straight chord along the narrowest breadth, centred
+    in the hull's band, left two corners of a pentagonal blob 2.2 × 1.5 w open (rocker-arm 0.8 layer 98:
+    90.3 % coverage), and which way a round blob's slivers fall (along flats or across corners, homer
+    0.8 layer 62, an octagon 1.6 w across) is decided by the same area."""
     centre = ring.points.mean(axis=0)
     plane = np.linalg.svd(ring.points - centre, full_matrices=False)[2][:2]
     flat = (ring.points - centre) @ plane.T
@@ -139,32 +140,64 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray) -> np.ndarray:
     across = hull @ normal.T  # (hull point, direction)
     breadth = np.ptp(across, axis=0)
     k = int(np.argmin(breadth))
-    # half the breadth the dot's beads must fill: from its ring inwards to the top, and outwards to the
-    # layer's edge (an outermost ring, FIRST_LEVEL widths) or to the bead of the ring outside it (½ width)
+    # half the breadth the dot's beads must fill: from its ring inwards to the top, and outwards
+    outward = min(ring.level, 0.5 * width)
     rise = ring.top - ring.level if np.isfinite(ring.top) else 0.5 * breadth[k]  # (a spliced ring: its own breadth)
-    half = rise + min(ring.level, 0.5 * width)
-    chords = max(int(np.ceil((2.0 * half - (OPEN_GAP - 0.5) * width) / (BEAD_RANGE[1] * width))), 1)
-    diameter = np.linalg.norm(hull[:, None] - hull[None], axis=2).max()
-    if chords == 1 and diameter - breadth[k] < 2.0 * (OPEN_GAP - 0.5) * width:
-        # a round blob, its breadth the same within the hairline either side whichever way: a diameter
-        centre = _dot_centre(ring)
-        return np.vstack([centre, ring.points[np.argmax(np.linalg.norm(ring.points - centre, axis=1))]])
-    lo, hi = across[:, k].min(), across[:, k].max()
-    along = hull @ edge[k]
-    outline = shapely.Polygon(np.c_[along, across[:, k]])
-    share = (hi - lo) / chords
-    spans = []
-    for c in range(chords):  # each chord spans its share of the hull from end to end
-        band = outline.intersection(shapely.box(along.min() - width, lo + c * share,
-                                                along.max() + width, lo + (c + 1) * share))
-        span = np.array(band.bounds)[[0, 2]] if not band.is_empty else np.full(2, along.mean())
-        spans.append(np.c_[span, np.full(2, lo + (c + 0.5) * share)])
+    chords = max(int(np.ceil((2.0 * (rise + outward) - (OPEN_GAP - 0.5) * width) / (BEAD_RANGE[1] * width))), 1)
+    if chords == 1:
+        blob = shapely.Polygon(hull).buffer(outward)
+        if border is not None and len(border):  # the layer's edge around the ring: the corners its contour rounds off
+            near = border[np.isfinite(cKDTree(ring.points).query(border, distance_upper_bound=outward + 0.5 * BEAD_RANGE[1] * width)[0])]
+            if len(near):
+                blob = shapely.MultiPoint(np.vstack([np.array(blob.exterior.coords), (near - centre) @ plane.T])).convex_hull
+        outline = np.array(blob.exterior.coords)[:-1]
+        radial = outline - outline.mean(axis=0)
+        sides = np.roll(outline, -1, axis=0) - outline
+        ways = np.vstack([sides, radial])
+        ways = ways[np.linalg.norm(ways, axis=1) > 1e-9 * width]
+        lines = [_centre_line(outline, way / np.linalg.norm(way), width, outward) for way in ways]
+        # what the bead across the blob's least breadth (within the widest) reaches, short of the hairline:
+        # all directions cover the blob at full reach, the corners the tighter reach leaves tell them apart
+        unit = sides / np.maximum(np.linalg.norm(sides, axis=1, keepdims=True), 1e-300)
+        least = np.ptp(outline @ np.c_[-unit[:, 1], unit[:, 0]].T, axis=0).min()
+        reach = 0.5 * min(BEAD_RANGE[1] * width, least) - (OPEN_GAP - 0.5) * width
+        covered = [blob.intersection(shapely.LineString(line).buffer(reach)).area for line in lines]
+        spans = [lines[int(np.argmax(covered))]]
+    else:
+        lo, hi = across[:, k].min(), across[:, k].max()
+        along = hull @ edge[k]
+        outline = shapely.Polygon(np.c_[along, across[:, k]])
+        share = (hi - lo) / chords
+        spans = []
+        for c in range(chords):  # each chord spans its share of the hull from end to end
+            band = outline.intersection(shapely.box(along.min() - width, lo + c * share,
+                                                    along.max() + width, lo + (c + 1) * share))
+            span = np.array(band.bounds)[[0, 2]] if not band.is_empty else np.full(2, along.mean())
+            mid = lo + (c + 0.5) * share
+            spans.append(np.outer(span, edge[k]) + np.outer(np.full(2, mid), normal[k]))
     walks = []
     for legs in (spans, spans[::-1]):  # from either side, either way: the walk that starts nearest the anchor
         for first in (0, 1):
             walk = np.vstack([leg[::-1] if (c + first) % 2 else leg for c, leg in enumerate(legs)])
-            walks.append(centre + (walk[:, :1] * edge[k] + walk[:, 1:] * normal[k]) @ plane)
+            walks.append(centre + walk @ plane)
     return min(walks, key=lambda walk: float(np.linalg.norm(walk[0] - anchor)))
+
+
+def _centre_line(hull: np.ndarray, direction: np.ndarray, width: float, inset: float) -> np.ndarray:
+    """Midpoints of the cross-sections of a convex polygon (``hull``, 2D) normal to the unit vector
+    ``direction``, every quarter width from ``inset`` inside one end of the polygon to ``inset`` inside
+    the other: a bead down it spans each cross-section evenly, bending where the polygon's sides slant."""
+    side = np.array([-direction[1], direction[0]])
+    t, u = hull @ direction, hull @ side
+    inset = min(inset, 0.25 * np.ptp(t))
+    at = np.linspace(t.min() + inset, t.max() - inset, max(int(np.ceil(np.ptp(t) / (0.25 * width))), 2) + 1)
+    t0, t1, u0, u1 = t, np.roll(t, -1), u, np.roll(u, -1)
+    lo_t, hi_t = np.minimum(t0, t1), np.maximum(t0, t1)
+    s = np.clip((at[:, None] - t0) / np.where(hi_t > lo_t, t1 - t0, 1.0), 0.0, 1.0)  # (cross-section, edge)
+    hit = (at[:, None] >= lo_t - 1e-12) & (at[:, None] <= hi_t + 1e-12) & (hi_t > lo_t)
+    cross = u0 + s * (u1 - u0)
+    mid = 0.5 * (np.where(hit, cross, np.inf).min(axis=1) + np.where(hit, cross, -np.inf).max(axis=1))
+    return np.outer(at, direction) + np.outer(mid, side)
 
 
 def _reversed(ring: Ring) -> Ring:
@@ -210,7 +243,7 @@ def _contour_tree(rings: list[Ring], root: int) -> tuple[_Tree, list[int]]:
 class _Builder:
     """Builds one connected-Fermat-spiral piece per subtree, splicing children where they fit."""
 
-    def __init__(self, tree: _Tree, width: float):
+    def __init__(self, tree: _Tree, width: float, edge: np.ndarray | None = None):
         self.tree = tree
         self.w = width
         self.gap = CUT_RANGE[0] * width
@@ -218,6 +251,7 @@ class _Builder:
         self.splices = 0
         self.failed = 0
         self._ring_points: tuple[_Tree, cKDTree, np.ndarray] | None = None  # every ring's points, for _link_crosses
+        self.edge = edge  #: points of the layer's edge (:func:`_dot_chord`)
 
     def chain_from(self, ring_id: int) -> list[int]:
         chain = [ring_id]
@@ -274,7 +308,7 @@ class _Builder:
         for k in order:
             ring, s = rings[k], cuts[k]
             if dots[k]:  # a bead-sized ring: its centre, reached by the links (alone: its diameter)
-                arcs.append(_dot_centre(ring)[None] if n > 1 else _dot_chord(ring, self.w, anchor))
+                arcs.append(_dot_centre(ring)[None] if n > 1 else _dot_chord(ring, self.w, anchor, self.edge))
                 for child in hosted.get(k, []):
                     self._separate(child)
                 continue
@@ -445,16 +479,17 @@ class _Builder:
 
 
 
-def connected_spirals(rings: list[Ring], width: float,
-                      start: np.ndarray | None) -> tuple[list[np.ndarray], int, int, int]:
+def connected_spirals(rings: list[Ring], width: float, start: np.ndarray | None,
+                      edge: np.ndarray | None = None) -> tuple[list[np.ndarray], int, int, int]:
     """One connected-Fermat-spiral piece per connected region of ``rings``, each rooted at the
     outermost ring nearest to where the previous one ended (``start`` for the first), then the
     children that no splice could host. Returns the pieces and the numbers of regions, splices
     and failed splices. A ring's ``floor`` (the narrowest bead along it) decides whether it is a
-    thin loop (:func:`~curvslice.toolpaths.rings.thin_rise`)."""
+    thin loop (:func:`~curvslice.toolpaths.rings.thin_rise`). ``edge``: points along the layer's edge,
+    which a lone dot's pass reaches (:func:`_dot_chord`)."""
     pieces: list[np.ndarray] = []
     remaining = set(range(len(rings)))
-    builder = _Builder(_Tree(rings, {}, {}), width)
+    builder = _Builder(_Tree(rings, {}, {}), width, edge)
     cursor = np.asarray(start, float) if start is not None else (rings[0].points[0] if rings else None)
     while remaining:
         # root: the band-0 component of the outermost ring nearest to the cursor
