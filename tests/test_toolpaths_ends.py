@@ -12,7 +12,7 @@ from curvslice.toolpaths import layer_paths
 from curvslice.toolpaths.beads import trim_ends
 from curvslice.toolpaths.constants import END_DEPTH
 from curvslice.verify.toolpaths import layer_cover
-from tests.test_toolpaths import polygon_mesh
+from test_toolpaths import polygon_mesh
 
 #: a lone blob 2.2 × 1.5 widths (rocker-arm 0.8 layer 98's, in widths): a sharp corner and a slanted side
 PENTAGON = [(-1.07, 0.24), (-0.51, -1.48), (0.61, -0.57), (1.13, 0.03), (0.44, 0.54), (-0.71, 0.52)]
