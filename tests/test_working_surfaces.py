@@ -520,3 +520,19 @@ def test_a_pocket_of_missed_voxels_reads_no_jumps_of_g():
         assert near_jump.all(), (layer.metadata["layer"], ends[off][~near_jump])
         inner_ends += int(off.sum())
     assert inner_ends > 0  # the seam's jump does end layers inside H: the test sees them
+
+
+def test_a_flat_top_on_a_voxel_face_is_printed_by_one_layer(tmp_path):
+    """An inverted cone whose flat top lies on a voxel face (z = 25 mm = 25 w): the top skin is the
+    surface of the layer whose voxels it covers. Its crossings once stayed on that face, on ∂H, so the
+    last layer (a few voxels) was extracted there too: over the whole top, off its own voxels and
+    crossing the layer before (layer checks failed on the cone, an L-shaped overhang, a hollow box)."""
+    cone = trimesh.creation.cone(15.0, 25.0)
+    cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi, [1.0, 0.0, 0.0]))
+    cone.export(tmp_path / "cone.stl")
+    out = tmp_path / "cone"
+    assert main(["slice", str(tmp_path / "cone.stl"), "--voxel", "1.0", "--stages", "layers", "--out", str(out)]) == 0
+    results = verify_layers.checks(out)
+    failed = [c for c in results if not c.passed]
+    assert not failed, failed
+    assert {"consecutive layers do not cross", "each layer lies on its own voxels"} <= {c.name for c in results}
