@@ -68,7 +68,7 @@ PAD = 3
 FALLBACK_OFFSETS = (0.0, -0.25, -0.5, -0.75, -0.9, -0.97, -0.99)
 #: Relative eigenvalue cut of the QEF's truncated pseudo-inverse (Ju et al. 2002 use 0.1).
 QEF_TRUNCATION = 0.3
-#: Edge fraction (of a voxel) into the empty voxel at which a crossing leaving an earlier layer's voxel
+#: Edge fraction (of a voxel) into the empty voxel at which a crossing leaving another layer's voxel
 #: at least lies: the empty voxel's interior holds no point of H (H ⊂ H̄), so the crossing is outside H
 #: by this much, well past trimming's SNAP, also where ∂H runs along the voxel face.
 SKIN_INSET = 0.25
@@ -251,12 +251,12 @@ def _solve_qef(ata: np.ndarray, atb: np.ndarray, mass: np.ndarray) -> np.ndarray
 def _outside_inset(fa: np.ndarray, fb: np.ndarray, solid_a: np.ndarray, solid_b: np.ndarray,
                    band: tuple[float, float] | None) -> np.ndarray:
     """How far (edge fraction) past the shared face a crossing on an edge leaving H̄ must lie: 0 from a
-    voxel of the layer being extracted (its own top may be ∂H), :data:`SKIN_INSET` from an earlier
-    layer's voxel (that skin is the earlier layer's surface, not this one's)."""
+    voxel of the layer being extracted (its own top may be ∂H), :data:`SKIN_INSET` from an earlier or a
+    later layer's voxel (that skin is the top or the underside of another layer, not this one's)."""
     if band is None:
         return np.zeros(len(fa))
     inner = np.where(solid_a & ~solid_b, fa, fb)
-    return np.where(inner <= band[0], SKIN_INSET, 0.0)
+    return np.where((inner <= band[0]) | (inner > band[1]), SKIN_INSET, 0.0)
 
 
 def dual_contour(field: ContinuedField, level: float, band: tuple[float, float] | None = None, *,
@@ -296,10 +296,10 @@ def dual_contour(field: ContinuedField, level: float, band: tuple[float, float] 
             t = np.where(jump, np.where(fa < fb, from_lo, 1 - from_lo), t)
             keep = ~jump | lo_in | hi_in
             a, b, fa, fb, t = a[keep], b[keep], fa[keep], fb[keep], t[keep]
-        # a crossing on an edge leaving H̄ stays in the empty voxel's half (outside H); leaving an
-        # earlier layer's voxel it lies inside the empty voxel, off the shared face: that face is on
-        # ∂H where a flat top of H meets the grid (z = k·w), and the earlier layer's skin kept there
-        # became a later layer's surface too (an inverted cone's top, twice)
+        # a crossing on an edge leaving H̄ stays in the empty voxel's half (outside H); leaving another
+        # layer's voxel it lies inside the empty voxel, off the shared face: that face is on ∂H where a
+        # flat top or underside of H meets the grid (z = k·w), and another layer's skin kept there became
+        # this layer's surface too (an inverted cone's top twice, an overhang's underside)
         inset = _outside_inset(vals[a], vals[b], solid[a], solid[b], band)
         t = np.where(solid[a] & ~solid[b], np.maximum(t, 0.5 + inset), t)
         t = np.where(solid[b] & ~solid[a], np.minimum(t, 0.5 - inset), t)

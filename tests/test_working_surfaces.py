@@ -522,16 +522,25 @@ def test_a_pocket_of_missed_voxels_reads_no_jumps_of_g():
     assert inner_ends > 0  # the seam's jump does end layers inside H: the test sees them
 
 
-def test_a_flat_top_on_a_voxel_face_is_printed_by_one_layer(tmp_path):
-    """An inverted cone whose flat top lies on a voxel face (z = 25 mm = 25 w): the top skin is the
-    surface of the layer whose voxels it covers. Its crossings once stayed on that face, on ∂H, so the
-    last layer (a few voxels) was extracted there too: over the whole top, off its own voxels and
-    crossing the layer before (layer checks failed on the cone, an L-shaped overhang, a hollow box)."""
-    cone = trimesh.creation.cone(15.0, 25.0)
-    cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi, [1.0, 0.0, 0.0]))
-    cone.export(tmp_path / "cone.stl")
-    out = tmp_path / "cone"
-    assert main(["slice", str(tmp_path / "cone.stl"), "--voxel", "1.0", "--stages", "layers", "--out", str(out)]) == 0
+def _grid_aligned_solid(name: str) -> trimesh.Trimesh:
+    """Solids whose flat faces lie on voxel faces at 1.0 and 1.5 mm: an inverted cone (top at z = 25)
+    and an L of a post and a 22 mm cantilever slab (underside at z = 24, top at z = 30)."""
+    if name == "inverted cone":
+        cone = trimesh.creation.cone(15.0, 25.0)
+        return cone.apply_transform(trimesh.transformations.rotation_matrix(np.pi, [1.0, 0.0, 0.0]))
+    return _box([8.0, 20.0, 24.0], [-11.0, 0.0, 12.0]).union(_box([30.0, 20.0, 6.0], [0.0, 0.0, 27.0]))
+
+
+@pytest.mark.parametrize("name, voxel", [("inverted cone", 1.0), ("L overhang", 1.5)])
+def test_a_flat_face_on_a_voxel_face_belongs_to_one_layer(tmp_path, name, voxel):
+    """Flat faces of H on voxel faces (z = k·w): a skin is the surface of the layer whose voxels it
+    bounds. Crossings leaving another layer's voxel once stayed on that face, on ∂H, so the last layer of
+    the cone (a few voxels) was extracted over the whole top, and a layer under the L's slab ran along
+    its underside: off their own voxels and crossing their neighbours."""
+    _grid_aligned_solid(name).export(tmp_path / "solid.stl")
+    out = tmp_path / "out"
+    assert main(["slice", str(tmp_path / "solid.stl"), "--voxel", str(voxel), "--stages", "layers",
+                 "--out", str(out)]) == 0
     results = verify_layers.checks(out)
     failed = [c for c in results if not c.passed]
     assert not failed, failed
