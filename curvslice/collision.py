@@ -62,13 +62,26 @@ def _set(obj: fcl.CollisionObject, T: np.ndarray) -> None:
     obj.setTranslation(T[:3, 3])
 
 
-def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of integer ``key`` (n, m): the index of one row per distinct value, and each row's group."""
+#: rows up to which :func:`_distinct` groups by a dict of their bytes instead of sorting
+SMALL_DISTINCT = 64
+
+
+def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[bytes]]:
+    """Rows of integer ``key`` (n, m): the index of one row per distinct value (the first one),
+    each row's group, and the distinct values' bytes (a few rows: by a dict, no sort)."""
+    if len(key) <= SMALL_DISTINCT:
+        names = [row.tobytes() for row in key]
+        seen: dict[bytes, int] = {}
+        group = np.array([seen.setdefault(name, len(seen)) for name in names], np.int64)
+        first = np.zeros(len(seen), np.int64)
+        first[group[::-1]] = np.arange(len(key))[::-1]
+        return first, group, list(seen)
     order = np.lexsort(key.T)
     new = np.r_[True, (key[order[1:]] != key[order[:-1]]).any(axis=1)]
     group = np.empty(len(key), np.int64)
     group[order] = np.cumsum(new) - 1
-    return order[new], group
+    first = order[new]
+    return first, group, [key[i].tobytes() for i in first]
 
 
 def rotation_core(body: Body) -> tuple[fcl.CollisionGeometry, np.ndarray] | None:
@@ -350,7 +363,8 @@ class CollisionScene:
         carried_static = (a >= L) & (a < first_static) & (b >= first_static)
         order = np.argsort(-self._hits, kind="stable")  # the pairs found in contact most often first
         platform_inverse = None
-        for k in order[carried_static[order]]:
+        live = carried_static & near.any(axis=0)
+        for k in order[live[order]]:
             rows = np.flatnonzero(near[:, k] & ~hit)
             if not len(rows):
                 continue
@@ -360,9 +374,8 @@ class CollisionScene:
             T = platform_inverse[rows] @ self.static_poses[s]  # the static body in the platform frame
             key = T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :]  # a cylinder or cone: its axis and centre
             key = np.rint(key.reshape(len(rows), -1) * 1e6).astype(np.int64)  # µm, µrad
-            first, group = _distinct(key)
+            first, group, names = _distinct(key)
             known = self._answers[a[k] - L].setdefault(s, {})
-            names = [key[i].tobytes() for i in first]
             found = np.array([known.get(name, -1) for name in names], np.int8)
             todo = np.flatnonzero(found < 0)
             if len(todo):
