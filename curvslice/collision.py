@@ -255,13 +255,17 @@ class CollisionScene:
         s_centre = np.array([(P[:3, :3] @ sh.center) + P[:3, 3] for sh, P in zip(self.static, self.static_poses)])
         s_reach = np.array([np.abs(P[:3, :3]) @ sh.half for sh, P in zip(self.static, self.static_poses)])
         near = (np.abs(centre[:, :, None] - s_centre[None, None]) <= reach[:, :, None] + s_reach[None, None]).all(axis=-1)
-        request = fcl.CollisionRequest()
-        for i in np.flatnonzero(near.any(axis=(1, 2))):
-            for c, k in zip(*np.nonzero(near[i])):
-                _set(shapes[c].obj, held[i])
-                if fcl.collide(shapes[c].obj, self.static[k].obj, request, fcl.CollisionResult()):
-                    out[i] = True
-                    break
+        L, S = len(self.links), len(self.static)
+        pairs = self.pairs[:, 0] - L, self.pairs[:, 1] - (len(self.shapes) - S)  # carried, static per pair
+        inverse = None
+        for k in np.argsort(-self._hits, kind="stable"):  # the pairs found in contact most often first
+            c, st = pairs[0][k], pairs[1][k]
+            if not (0 <= c < len(shapes) and st >= 0):
+                continue
+            rows = np.flatnonzero(near[:, c, st] & ~out)
+            if len(rows):
+                inverse = rigid_inverse(held) if inverse is None else inverse
+                out[rows] = self._relative_answers(k, held[rows], inverse[rows])
         return out
 
     def for_layer(self, layers: list[trimesh.Trimesh], layer: int):
@@ -357,9 +361,7 @@ class CollisionScene:
             if len(rows):
                 hit[rows] = self._inside_box(poses[rows], T_inv, half, links[rows])
         self.fcl_configs += int((near.any(axis=1) & ~hit).sum())
-        # carried-vs-static pairs depend on the relative pose only: one fcl test per distinct one,
-        # remembered while the carried body is (the graph search asks every θ of a waypoint: one
-        # nozzle placement)
+        # carried-vs-static pairs depend on the relative pose only (_relative_answers)
         carried_static = (a >= L) & (a < first_static) & (b >= first_static)
         order = np.argsort(-self._hits, kind="stable")  # the pairs found in contact most often first
         platform_inverse = None
@@ -370,30 +372,40 @@ class CollisionScene:
                 continue
             if platform_inverse is None:
                 platform_inverse = rigid_inverse(poses[:, L])
-            s = b[k] - first_static
-            T = platform_inverse[rows] @ self.static_poses[s]  # the static body in the platform frame
-            key = T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :]  # a cylinder or cone: its axis and centre
-            key = np.rint(key.reshape(len(rows), -1) * 1e6).astype(np.int64)  # µm, µrad
-            first, group, names = _distinct(key)
-            known = self._answers[a[k] - L].setdefault(s, {})
-            found = np.array([known.get(name, -1) for name in names], np.int8)
-            todo = np.flatnonzero(found < 0)
-            if len(todo):
-                found[todo] = self._test_pair(poses, rows[first[todo]], k)
-                known.update(zip([names[i] for i in todo], found[todo].tolist()))
-            hit[rows] |= found[group] > 0
+            hit[rows] |= self._relative_answers(k, poses[rows, L], platform_inverse[rows])
         self._test(poses, near, np.flatnonzero(~hit & near[:, ~carried_static].any(axis=1)),
                    np.flatnonzero(~carried_static), out=hit)
         return hit
 
-    def _test_pair(self, poses: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
-        """fcl on pair ``k`` (a carried body against a static one) at configurations ``rows``."""
+    def _relative_answers(self, k: int, placed: np.ndarray, inverse: np.ndarray) -> np.ndarray:
+        """(n,) bool: fcl's answer for pair ``k`` (a carried body against a static one) with the
+        platform placed at T_B^P ``placed`` (n, 4, 4) (``inverse``: their inverses). It depends on
+        the static body's pose in the platform frame only (a cylinder or cone: its axis and centre),
+        so fcl tests each distinct one once (µm, µrad) and the answers are remembered while that
+        body is carried: :meth:`collisions` and :meth:`held_blocked` (one nozzle frame, every IK
+        branch) share them."""
+        c, s = self.pairs[k, 0] - len(self.links), self.pairs[k, 1] - (len(self.shapes) - len(self.static))
+        T = inverse @ self.static_poses[s]  # the static body in the platform frame
+        key = T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :]
+        key = np.rint(key.reshape(len(T), -1) * 1e6).astype(np.int64)
+        first, group, names = _distinct(key)
+        known = self._answers[c].setdefault(s, {})
+        found = np.array([known.get(name, -1) for name in names], np.int8)
+        todo = np.flatnonzero(found < 0)
+        if len(todo):
+            found[todo] = self._test_pair(placed[first[todo]], k)
+            known.update(zip([names[i] for i in todo], found[todo].tolist()))
+        return found[group] > 0
+
+    def _test_pair(self, placed: np.ndarray, k: int) -> np.ndarray:
+        """fcl on pair ``k`` (a carried body against a static one), the carried body at ``placed``
+        (n, 4, 4)."""
         pa, pb = self.pairs[k]
         moving, fixed = self.shapes[pa].obj, self.shapes[pb].obj
         request = fcl.CollisionRequest()
-        found = np.zeros(len(rows), bool)
-        for r, i in enumerate(rows):
-            _set(moving, poses[i, pa])
+        found = np.zeros(len(placed), bool)
+        for r, T in enumerate(placed):
+            _set(moving, T)
             found[r] = fcl.collide(moving, fixed, request, fcl.CollisionResult())
         self._hits[k] += found.sum()
         return found
