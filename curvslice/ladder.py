@@ -86,6 +86,11 @@ def _joint_costs(
     return total, largest
 
 
+#: ξΔt (rad, < π: a window then never holds a node twice) from which :func:`sparse_edges` takes the
+#: dense matrix, and node pairs up to which it takes it already from 1 rad (bunny layer 15 rungs,
+#: ξΔt 1-1.5 rad: 960 x 960 nodes dense 25-27 ms, windowed 8-12 ms; 240 x 240 0.9-1.2 / 0.6-0.9 ms;
+#: 120 x 120 0.21 / 0.24 ms; at 2.5 rad dense is faster at every size)
+DENSE_WINDOW, DENSE_PAIRS = 2.0, 20000
 #: every how many target nodes :func:`sparse_edges` counts the crowd of each joint on
 CROWD_STEP = 4
 #: rad between the joints' values in :func:`sparse_edges`' one sorted array (more than a joint's range plus 2ξΔt)
@@ -109,7 +114,7 @@ def sparse_edges(
     kb = np.flatnonzero(~np.isnan(qb[:, 0]))
     if len(ka) == 0 or len(kb) == 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    if limit >= 1.0:  # wide windows: the dense matrix is as cheap
+    if limit >= DENSE_WINDOW or (limit >= 1.0 and len(ka) * len(kb) <= DENSE_PAIRS):  # the dense matrix is as cheap
         w = edge_weights(qa, qb, dt, max_speed, circular, cost, weights)
         ia, ib = np.nonzero(np.isfinite(w))
         return ia, ib, w[ia, ib]

@@ -12,6 +12,7 @@ import pytest
 from curvslice.collision import SMALL_DISTINCT, CollisionScene, _distinct
 from curvslice.kinematics import fk, fk_reference, load_robot
 from curvslice.ladder import (
+    DENSE_WINDOW,
     EdgeMemo,
     RungMemo,
     blocked_rungs,
@@ -100,6 +101,23 @@ def test_sparse_edges_equal_the_dense_matrix():
             got = np.full_like(dense, np.inf)
             got[ia, ib] = w
             assert len(set(zip(ia.tolist(), ib.tolist()))) == len(ia)  # no duplicate edges
+            np.testing.assert_array_equal(got, dense)
+
+
+def test_wide_windows_on_large_rungs_equal_the_dense_matrix():
+    """Steps of 1-2 rad (ξΔt) between rungs of more than DENSE_PAIRS node pairs take the sorted
+    window, not the dense matrix: the same edges and weights, none twice."""
+    rng = np.random.default_rng(9)
+    for K in (150, 400):
+        q = rng.uniform(-np.pi, np.pi, (6, K, 6))
+        q[rng.random((6, K)) < 0.2] = np.nan
+        circ = rng.random(6) < 0.5
+        for i, dt in enumerate(rng.uniform(1.0, DENSE_WINDOW, 5)):
+            dense = edge_weights(q[i], q[i + 1], dt, 1.0, circ)
+            ia, ib, w = sparse_edges(q[i], q[i + 1], dt, 1.0, circ)
+            assert len(set(zip(ia.tolist(), ib.tolist()))) == len(ia)
+            got = np.full_like(dense, np.inf)
+            got[ia, ib] = w
             np.testing.assert_array_equal(got, dense)
 
 
