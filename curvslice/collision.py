@@ -62,13 +62,26 @@ def _set(obj: fcl.CollisionObject, T: np.ndarray) -> None:
     obj.setTranslation(T[:3, 3])
 
 
-def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rows of integer ``key`` (n, m): the index of one row per distinct value, and each row's group."""
+#: rows up to which :func:`_distinct` groups by a dict of their bytes instead of sorting
+SMALL_DISTINCT = 64
+
+
+def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[bytes]]:
+    """Rows of integer ``key`` (n, m): the index of one row per distinct value (the first one),
+    each row's group, and the distinct values' bytes (a few rows: by a dict, no sort)."""
+    if len(key) <= SMALL_DISTINCT:
+        names = [row.tobytes() for row in key]
+        seen: dict[bytes, int] = {}
+        group = np.array([seen.setdefault(name, len(seen)) for name in names], np.int64)
+        first = np.zeros(len(seen), np.int64)
+        first[group[::-1]] = np.arange(len(key))[::-1]
+        return first, group, list(seen)
     order = np.lexsort(key.T)
     new = np.r_[True, (key[order[1:]] != key[order[:-1]]).any(axis=1)]
     group = np.empty(len(key), np.int64)
     group[order] = np.cumsum(new) - 1
-    return order[new], group
+    first = order[new]
+    return first, group, [key[i].tobytes() for i in first]
 
 
 def rotation_core(body: Body) -> tuple[fcl.CollisionGeometry, np.ndarray] | None:
@@ -242,13 +255,17 @@ class CollisionScene:
         s_centre = np.array([(P[:3, :3] @ sh.center) + P[:3, 3] for sh, P in zip(self.static, self.static_poses)])
         s_reach = np.array([np.abs(P[:3, :3]) @ sh.half for sh, P in zip(self.static, self.static_poses)])
         near = (np.abs(centre[:, :, None] - s_centre[None, None]) <= reach[:, :, None] + s_reach[None, None]).all(axis=-1)
-        request = fcl.CollisionRequest()
-        for i in np.flatnonzero(near.any(axis=(1, 2))):
-            for c, k in zip(*np.nonzero(near[i])):
-                _set(shapes[c].obj, held[i])
-                if fcl.collide(shapes[c].obj, self.static[k].obj, request, fcl.CollisionResult()):
-                    out[i] = True
-                    break
+        L, S = len(self.links), len(self.static)
+        pairs = self.pairs[:, 0] - L, self.pairs[:, 1] - (len(self.shapes) - S)  # carried, static per pair
+        inverse = None
+        for k in np.argsort(-self._hits, kind="stable"):  # the pairs found in contact most often first
+            c, st = pairs[0][k], pairs[1][k]
+            if not (0 <= c < len(shapes) and st >= 0):
+                continue
+            rows = np.flatnonzero(near[:, c, st] & ~out)
+            if len(rows):
+                inverse = rigid_inverse(held) if inverse is None else inverse
+                out[rows] = self._relative_answers(k, held[rows], inverse[rows])
         return out
 
     def for_layer(self, layers: list[trimesh.Trimesh], layer: int):
@@ -344,43 +361,51 @@ class CollisionScene:
             if len(rows):
                 hit[rows] = self._inside_box(poses[rows], T_inv, half, links[rows])
         self.fcl_configs += int((near.any(axis=1) & ~hit).sum())
-        # carried-vs-static pairs depend on the relative pose only: one fcl test per distinct one,
-        # remembered while the carried body is (the graph search asks every θ of a waypoint: one
-        # nozzle placement)
+        # carried-vs-static pairs depend on the relative pose only (_relative_answers)
         carried_static = (a >= L) & (a < first_static) & (b >= first_static)
         order = np.argsort(-self._hits, kind="stable")  # the pairs found in contact most often first
         platform_inverse = None
-        for k in order[carried_static[order]]:
+        live = carried_static & near.any(axis=0)
+        for k in order[live[order]]:
             rows = np.flatnonzero(near[:, k] & ~hit)
             if not len(rows):
                 continue
             if platform_inverse is None:
                 platform_inverse = rigid_inverse(poses[:, L])
-            s = b[k] - first_static
-            T = platform_inverse[rows] @ self.static_poses[s]  # the static body in the platform frame
-            key = T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :]  # a cylinder or cone: its axis and centre
-            key = np.rint(key.reshape(len(rows), -1) * 1e6).astype(np.int64)  # µm, µrad
-            first, group = _distinct(key)
-            known = self._answers[a[k] - L].setdefault(s, {})
-            names = [key[i].tobytes() for i in first]
-            found = np.array([known.get(name, -1) for name in names], np.int8)
-            todo = np.flatnonzero(found < 0)
-            if len(todo):
-                found[todo] = self._test_pair(poses, rows[first[todo]], k)
-                known.update(zip([names[i] for i in todo], found[todo].tolist()))
-            hit[rows] |= found[group] > 0
+            hit[rows] |= self._relative_answers(k, poses[rows, L], platform_inverse[rows])
         self._test(poses, near, np.flatnonzero(~hit & near[:, ~carried_static].any(axis=1)),
                    np.flatnonzero(~carried_static), out=hit)
         return hit
 
-    def _test_pair(self, poses: np.ndarray, rows: np.ndarray, k: int) -> np.ndarray:
-        """fcl on pair ``k`` (a carried body against a static one) at configurations ``rows``."""
+    def _relative_answers(self, k: int, placed: np.ndarray, inverse: np.ndarray) -> np.ndarray:
+        """(n,) bool: fcl's answer for pair ``k`` (a carried body against a static one) with the
+        platform placed at T_B^P ``placed`` (n, 4, 4) (``inverse``: their inverses). It depends on
+        the static body's pose in the platform frame only (a cylinder or cone: its axis and centre),
+        so fcl tests each distinct one once (µm, µrad) and the answers are remembered while that
+        body is carried: :meth:`collisions` and :meth:`held_blocked` (one nozzle frame, every IK
+        branch) share them."""
+        c, s = self.pairs[k, 0] - len(self.links), self.pairs[k, 1] - (len(self.shapes) - len(self.static))
+        T = inverse @ self.static_poses[s]  # the static body in the platform frame
+        key = T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :]
+        key = np.rint(key.reshape(len(T), -1) * 1e6).astype(np.int64)
+        first, group, names = _distinct(key)
+        known = self._answers[c].setdefault(s, {})
+        found = np.array([known.get(name, -1) for name in names], np.int8)
+        todo = np.flatnonzero(found < 0)
+        if len(todo):
+            found[todo] = self._test_pair(placed[first[todo]], k)
+            known.update(zip([names[i] for i in todo], found[todo].tolist()))
+        return found[group] > 0
+
+    def _test_pair(self, placed: np.ndarray, k: int) -> np.ndarray:
+        """fcl on pair ``k`` (a carried body against a static one), the carried body at ``placed``
+        (n, 4, 4)."""
         pa, pb = self.pairs[k]
         moving, fixed = self.shapes[pa].obj, self.shapes[pb].obj
         request = fcl.CollisionRequest()
-        found = np.zeros(len(rows), bool)
-        for r, i in enumerate(rows):
-            _set(moving, poses[i, pa])
+        found = np.zeros(len(placed), bool)
+        for r, T in enumerate(placed):
+            _set(moving, T)
             found[r] = fcl.collide(moving, fixed, request, fcl.CollisionResult())
         self._hits[k] += found.sum()
         return found

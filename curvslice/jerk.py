@@ -182,7 +182,7 @@ def joint_rates(red: Redundancy, z: np.ndarray, rows: np.ndarray, q: np.ndarray)
         return np.concatenate([joint_rates(red, z[s:s + CHUNK], rows[s:s + CHUNK], q[s:s + CHUNK])
                                for s in range(0, len(z), CHUNK)])
     F = joint_placements(red.robot, q)
-    axis = ["XYZ".index(red.robot.model.joints[j].shortname()[-1]) for j in range(1, 7)]
+    axis = red.robot.chain[0][1:]
     a = np.stack([F[:, j + 1, :3, axis[j]] for j in range(6)], axis=2)  # (k, 3, 6)
     p = F[:, 1:, :3, 3].transpose(0, 2, 1)
     J = np.concatenate([np.cross(p, a, axis=1), a], axis=1)  # (k, 6, 6) spatial Jacobian

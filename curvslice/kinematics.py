@@ -18,6 +18,7 @@ reference the analytic solvers are tested against (:func:`fk_reference`).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -98,6 +99,20 @@ class Robot:
     base_offset: np.ndarray  # (4, 4) base_link -> frame in which ``params`` are stated
     links: tuple[LinkShape, ...]
     allowed_pairs: frozenset[frozenset[str]]  # link pairs excluded from self-collision
+
+    @cached_property
+    def chain(self) -> tuple[tuple[int, ...], tuple[int, ...], np.ndarray]:
+        """The constants of :func:`joint_placements`, read from the pinocchio model once: each
+        joint's axis (0/1/2 for x/y/z), its parent joint and its placement (7, 4, 4) in mm."""
+        model = self.model
+        axes = tuple("XYZ".index(model.joints[j].shortname()[-1]) for j in range(7) if j > 0)
+        placements = np.stack([np.eye(4)] + [_se3(model.jointPlacements[j]) for j in range(1, 7)])
+        return (0,) + axes, tuple(model.parents[j] for j in range(7)), placements
+
+    @cached_property
+    def link_frames(self) -> tuple[list[int], np.ndarray]:
+        """The joint carrying each of ``links`` and the bodies' placements (L, 4, 4) on them."""
+        return [s.joint for s in self.links], np.stack([s.placement for s in self.links])
 
 
 def _share_dir() -> Path:
@@ -236,23 +251,22 @@ def joint_placements(robot: Robot, q: np.ndarray) -> np.ndarray:
     """World poses (n, 7, 4, 4) in mm of the base (index 0) and the six joint frames of the
     pinocchio model, vectorized over configurations (each joint turns about its own x, y or z)."""
     q = np.atleast_2d(np.asarray(q, float))
-    model = robot.model
+    axes, parents, placements = robot.chain
     out = np.empty((len(q), 7, 4, 4))
     out[:, 0] = np.eye(4)
     for j in range(1, 7):
-        axis = "XYZ".index(model.joints[j].shortname()[-1])
         turn = np.zeros((len(q), 4, 4))
-        turn[:, :3, :3] = _rot(axis, q[:, j - 1])
+        turn[:, :3, :3] = _rot(axes[j], q[:, j - 1])
         turn[:, 3, 3] = 1.0
-        out[:, j] = out[:, model.parents[j]] @ _se3(model.jointPlacements[j]) @ turn
+        out[:, j] = out[:, parents[j]] @ placements[j] @ turn
     return out
 
 
 def link_placements(robot: Robot, q: np.ndarray) -> np.ndarray:
     """Poses (n, L, 4, 4) in mm of every collision body of ``robot.links`` at configurations q."""
     frames = joint_placements(robot, q)
-    local = np.stack([s.placement for s in robot.links])
-    return frames[:, [s.joint for s in robot.links]] @ local
+    joints, local = robot.link_frames
+    return frames[:, joints] @ local
 
 
 def _ur_dh(robot: Robot) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -9,9 +9,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from curvslice.collision import CollisionScene
+from curvslice.collision import SMALL_DISTINCT, CollisionScene, _distinct
 from curvslice.kinematics import fk, fk_reference, load_robot
 from curvslice.ladder import (
+    DENSE_WINDOW,
     EdgeMemo,
     RungMemo,
     blocked_rungs,
@@ -26,6 +27,7 @@ from curvslice.ladder import (
     shortest_path,
     sparse_edges,
     tilted_axes,
+    turned_frames,
 )
 from curvslice.motion import (Remembered, coarse_rungs, deviation_windows, plan_layer, plan_motion, reach_cone,
                               step_times, unwind)
@@ -99,6 +101,23 @@ def test_sparse_edges_equal_the_dense_matrix():
             got = np.full_like(dense, np.inf)
             got[ia, ib] = w
             assert len(set(zip(ia.tolist(), ib.tolist()))) == len(ia)  # no duplicate edges
+            np.testing.assert_array_equal(got, dense)
+
+
+def test_wide_windows_on_large_rungs_equal_the_dense_matrix():
+    """Steps of 1-2 rad (ξΔt) between rungs of more than DENSE_PAIRS node pairs take the sorted
+    window, not the dense matrix: the same edges and weights, none twice."""
+    rng = np.random.default_rng(9)
+    for K in (150, 400):
+        q = rng.uniform(-np.pi, np.pi, (6, K, 6))
+        q[rng.random((6, K)) < 0.2] = np.nan
+        circ = rng.random(6) < 0.5
+        for i, dt in enumerate(rng.uniform(1.0, DENSE_WINDOW, 5)):
+            dense = edge_weights(q[i], q[i + 1], dt, 1.0, circ)
+            ia, ib, w = sparse_edges(q[i], q[i + 1], dt, 1.0, circ)
+            assert len(set(zip(ia.tolist(), ib.tolist()))) == len(ia)
+            got = np.full_like(dense, np.inf)
+            got[ia, ib] = w
             np.testing.assert_array_equal(got, dense)
 
 
@@ -508,6 +527,67 @@ def test_held_frames_collide_on_every_branch_at_that_rotation(ur5):
         nodes = np.arange(8 * ss, 8 * ss + 8)
         nodes = nodes[ok[jj, nodes]]
         assert scene.collisions(q[jj, nodes]).all()
+
+
+def test_held_frames_and_node_checks_share_fcl_answers_without_changing_them(ur5):
+    """held_blocked and collisions keep one fcl answer per relative pose of a carried and a static
+    body: asked in either order, with a printed part carried, the answers equal fcl on every pair
+    (no memory), and the second asker tests fewer poses with fcl."""
+    import fcl
+    import trimesh
+
+    robot, cell = ur5
+    c, t = _platform_waypoints([0.0, 30.0, 45.0, 55.0, 65.0, 80.0], height=2.0)
+    p = cell.rotations
+    j, s = np.divmod(np.arange(len(c) * p), p)
+    frames = turned_frames(c[j], t[j], rotation_samples(p)[s])
+    part = trimesh.creation.box((6.0, 30.0, 3.0))
+    part.apply_translation([4.0, 0.0, 1.5])  # printed layers beside the waypoints
+
+    def fresh() -> CollisionScene:
+        scene = CollisionScene(robot, cell)
+        scene.set_part(part)
+        return scene
+
+    ref_scene = fresh()
+    held = ref_scene.nozzle @ np.linalg.inv(frames)
+    request = fcl.CollisionRequest()
+    want = []
+    for T in held:
+        for carried in ref_scene.carried:
+            carried.obj.setRotation(T[:3, :3])
+            carried.obj.setTranslation(T[:3, 3])
+        want.append(any(fcl.collide(a.obj, b.obj, request, fcl.CollisionResult())
+                        for a in ref_scene.carried for b in ref_scene.static))
+    want = np.array(want)
+    assert want.any() and not want.all()
+    q, ok = ladder(robot, cell, c, t, p)
+    nodes = q[ok]
+    first = fresh()
+    np.testing.assert_array_equal(first.held_blocked(frames), want)
+    node_answers = first.collisions(nodes)
+    np.testing.assert_array_equal(node_answers, [bool(x) for x in first.colliding_pairs(nodes)])
+    second = fresh()
+    tested = []
+    inner = second._test_pair
+    second._test_pair = lambda placed, k: tested.append(len(placed)) or inner(placed, k)
+    np.testing.assert_array_equal(second.collisions(nodes), node_answers)
+    alone = sum(tested)
+    np.testing.assert_array_equal(second.held_blocked(frames), want)
+    assert sum(tested) - alone < len(frames)  # frames answered from the nodes' relative poses
+
+
+def test_distinct_groups_rows_by_value_small_or_sorted():
+    """_distinct (a dict for few rows, a sort for many): each row's group holds its value, one first
+    row per value (its first occurrence), the values' bytes in the first rows' order."""
+    rng = np.random.default_rng(8)
+    for n in (1, 7, SMALL_DISTINCT, SMALL_DISTINCT + 1, 500):
+        key = rng.integers(0, 4, (n, 3)).astype(np.int64)
+        first, group, names = _distinct(key)
+        np.testing.assert_array_equal(key[first[group]], key)
+        assert len({k.tobytes() for k in key[first]}) == len(first)
+        assert all(first[g] == np.flatnonzero(group == g)[0] for g in range(len(first)))
+        assert names == [key[i].tobytes() for i in first]
 
 
 def test_hopeless_rungs_never_drop_a_waypoint_with_a_free_pose(ur5):
