@@ -445,7 +445,7 @@ class _Builder:
                 if g <= o <= span - g and all(abs(o - t) >= 2 * g for t in taken):
                     ok_pos = o
                     break
-            if ok_pos is None or dist > SPLICE_REACH * self.w or self._link_crosses(
+            if ok_pos is None or dist > self._reach(ring, child) or self._link_crosses(
                     _point_at(closed, cum, s_child), cut_point, (host, child)):
                 self._separate(child)
                 continue
@@ -469,6 +469,15 @@ class _Builder:
             cursor = o + g / 2
         parts.append(_arc(ring, start + direction * cursor, end, direction))
         return np.vstack(parts)
+
+    def _reach(self, host: Ring, child: int) -> float:
+        """How far ``child`` may lie from ``host`` to be spliced into it: ``SPLICE_REACH`` widths, but one width
+        (the spacing of nested rings) for a sibling -- a ring of the same band component below as the host, a
+        lobe of the layer joined to the host's across the band under the first level. That band is narrower than
+        ``2·FIRST_LEVEL`` widths, so the splice's links in and out, a cut apart at either end, squeeze into it
+        side by side over their whole length and lay two beads along it (fertility 0.8 layer 187: a lobe 2.2 w
+        along a neck, 9.5 % overlap); a longer way round, the sibling is a piece of its own."""
+        return self.w if self.tree.rings[child].below == host.below else SPLICE_REACH * self.w
 
     def _nearest_point(self, child: int, host: Ring) -> np.ndarray:
         pts = self.tree.rings[child].points
