@@ -70,8 +70,10 @@ FALLBACK_OFFSETS = (0.0, -0.25, -0.5, -0.75, -0.9, -0.97, -0.99)
 QEF_TRUNCATION = 0.3
 #: Edge fraction (of a voxel) into the empty voxel at which a crossing leaving another layer's voxel
 #: at least lies: the empty voxel's interior holds no point of H (H ⊂ H̄), so the crossing is outside H
-#: by this much, well past trimming's SNAP, also where ∂H runs along the voxel face.
-SKIN_INSET = 0.25
+#: by this much, past trimming's SNAP (0.01 w) and ROOT_TOL, also where ∂H runs along the voxel face. Kept
+#: small: every shared model's layers move with it where another layer's voxel meets the skin (0.25 moved
+#: fertility 0.8 layer 13 by 0.5 mm² of area, 4.7 -> 5.8 % overlap; 0.05 keeps it at 4.6 %).
+SKIN_INSET = 0.05
 #: Consecutive layers that the approximation makes cross are pushed apart to this clearance (in
 #: voxel widths), for at most SEPARATION_ROUNDS rounds.
 CLEARANCE = 0.01
