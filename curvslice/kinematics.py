@@ -105,7 +105,7 @@ class Robot:
         """The constants of :func:`joint_placements`, read from the pinocchio model once: each
         joint's axis (0/1/2 for x/y/z), its parent joint and its placement (7, 4, 4) in mm."""
         model = self.model
-        axes = tuple("XYZ".index(model.joints[j].shortname()[-1]) for j in range(7) if j > 0)
+        axes = tuple("XYZ".index(model.joints[j].shortname()[-1]) for j in range(1, 7))
         placements = np.stack([np.eye(4)] + [_se3(model.jointPlacements[j]) for j in range(1, 7)])
         return (0,) + axes, tuple(model.parents[j] for j in range(7)), placements
 
