@@ -21,6 +21,7 @@ from curvslice.ladder import (
     edge_weights,
     held_frames,
     hopeless_rungs,
+    joint_steps,
     ladder,
     ladder_at,
     reference_shortest_path,
@@ -29,8 +30,8 @@ from curvslice.ladder import (
     tilted_axes,
     turned_frames,
 )
-from curvslice.motion import (Remembered, coarse_rungs, deviation_windows, plan_layer, plan_motion, reach_cone,
-                              step_times, unwind)
+from curvslice.motion import (BUMPS, Remembered, _fill, coarse_rungs, deviation_windows, plan_layer, plan_motion,
+                              reach_cone, step_times, unwind)
 from curvslice.workcell import load_workcell, rotation_samples, waypoints_from_flange
 
 
@@ -605,9 +606,10 @@ def test_hopeless_rungs_never_drop_a_waypoint_with_a_free_pose(ur5):
 
 
 def test_early_skips_plan_the_same_layer_as_the_full_search(ur5):
-    """plan_layer with the scene (its whole-rung and per-frame tests skip hopeless rungs and θ
-    early) realizes, deviates and skips exactly the waypoints the node-by-node search does, with
-    the same joints."""
+    """plan_layer with the scene (its whole-rung and per-frame tests find the hopeless rungs before
+    the search, whose axes are then deviated before it) realizes, deviates and skips exactly the
+    waypoints the node-by-node search does (which deviates them after searching); its joints
+    reproduce the deviated waypoints, within the limits, ξ and free of collision."""
     robot, cell = ur5
     cell = dataclasses.replace(cell, rotations=8)
     scene = CollisionScene(robot, cell)
@@ -620,4 +622,44 @@ def test_early_skips_plan_the_same_layer_as_the_full_search(ur5):
     assert 0 < len(fast.index) < len(c) and (fast.deviation > 0).any()
     np.testing.assert_array_equal(fast.index, full.index)
     np.testing.assert_array_equal(fast.deviation, full.deviation)
-    np.testing.assert_allclose(fast.q, full.q, atol=1e-12)
+    np.testing.assert_allclose(fast.normals, full.normals, atol=1e-12)
+    for motion in (fast, full):
+        _assert_realizes(robot, cell, scene, motion, c[motion.index], motion.normals)
+
+
+def test_a_gap_whose_interpolated_rotation_collides_is_filled_by_a_bump(ur5):
+    """_fill: where a node of the θ interpolated in time collides, a smooth bump δ·sin²(πu) of θ
+    (δ from BUMPS, smallest first) fills the gap instead: the colliding node is avoided, every
+    node reproduces its waypoint on the gap's IK branch, ξ holds on every step, and θ leaves the
+    interpolation by at most the bump."""
+    robot, cell = ur5
+    c, t = _dome_spiral(200)
+    c, t = c[:9], t[:9]
+    dt = step_times(c, cell.linear_speed, cell.min_step_time)
+    elapsed = np.r_[0.0, np.cumsum(dt)]
+    lo, hi = cell.limits(robot)
+    circ = circular_joints(lo, hi)
+    branch = next(b for b in range(8) if ladder_at(robot, cell, c, t, np.full(9, 0.35), np.full(9, b))[1].all())
+    qa, ok = ladder_at(robot, cell, c[[0, 8]], t[[0, 8]], np.array([0.3, 0.4]), np.full(2, branch))
+    assert ok.all()
+    u = (elapsed[1:8] - elapsed[0]) / (elapsed[8] - elapsed[0])
+    straight, _ = ladder_at(robot, cell, c[1:8], t[1:8], 0.3 + 0.1 * u, np.full(7, branch))
+    blocked = straight[3]
+
+    def collides(q):
+        return np.abs(q - blocked).max(axis=1) < 1e-9
+
+    chosen = np.full((9, 6), np.nan)
+    chosen[[0, 8]] = qa
+    link = np.zeros(9, bool)
+    good, asked = _fill(robot, cell, c, t, dt, elapsed, np.array([0]), np.array([8]), np.array([0.3]),
+                        np.array([0.4]), np.array([branch]), collides, circ, chosen, link)
+    assert good.all() and link[1:].all() and asked > 7
+    assert not collides(chosen).any()
+    pos, axis = waypoints_from_flange(cell, fk_reference(robot, chosen))
+    assert np.abs(pos - c).max() < 1e-6 and np.abs(axis - t).max() < 1e-9
+    step = joint_steps(chosen[:-1], chosen[1:], circ)[1]  # circular joints the short way round
+    assert (step <= cell.max_joint_speed * dt * (1 + 1e-9)).all()
+    bumped = [ladder_at(robot, cell, c[1:8], t[1:8], 0.3 + 0.1 * u + d * np.sin(np.pi * u) ** 2,
+                        np.full(7, branch))[0] for d in np.r_[-BUMPS, BUMPS]]
+    assert any(np.abs(q - chosen[1:8]).max() < 1e-12 for q in bumped)  # one of the bumps, exactly
