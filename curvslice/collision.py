@@ -255,11 +255,9 @@ class CollisionScene:
         s_centre = np.array([(P[:3, :3] @ sh.center) + P[:3, 3] for sh, P in zip(self.static, self.static_poses)])
         s_reach = np.array([np.abs(P[:3, :3]) @ sh.half for sh, P in zip(self.static, self.static_poses)])
         near = (np.abs(centre[:, :, None] - s_centre[None, None]) <= reach[:, :, None] + s_reach[None, None]).all(axis=-1)
-        L, S = len(self.links), len(self.static)
-        pairs = self.pairs[:, 0] - L, self.pairs[:, 1] - (len(self.shapes) - S)  # carried, static per pair
         inverse = None
         for k in np.argsort(-self._hits, kind="stable"):  # the pairs found in contact most often first
-            c, st = pairs[0][k], pairs[1][k]
+            c, st = self._carried_of[k], self._static_of[k]
             if not (0 <= c < len(shapes) and st >= 0):
                 continue
             rows = np.flatnonzero(near[:, c, st] & ~out)
@@ -327,6 +325,9 @@ class CollisionScene:
         for c in range(C):
             pairs += [(L + c, a) for a in range(L) if a != self._flange_link]
         self.pairs = np.array(pairs, dtype=np.int64).reshape(-1, 2)
+        # per pair: its first body as a carried body's index and its second as a static one's (a carried /
+        # static pair has both in range: 0 <= carried < C, static >= 0)
+        self._carried_of, self._static_of = self.pairs[:, 0] - L, self.pairs[:, 1] - (L + C)
         self._hits = np.zeros(len(self.pairs))
         self.shapes = self.links + self.carried + self.static
         self.centers = np.array([s.center for s in self.shapes])
@@ -384,7 +385,7 @@ class CollisionScene:
         so fcl tests each distinct one once (µm, µrad) and the answers are remembered while that
         body is carried: :meth:`collisions` and :meth:`held_blocked` (one nozzle frame, every IK
         branch) share them."""
-        c, s = self.pairs[k, 0] - len(self.links), self.pairs[k, 1] - (len(self.shapes) - len(self.static))
+        c, s = self._carried_of[k], self._static_of[k]
         T = inverse @ self.static_poses[s]  # the static body in the platform frame
         key = T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :]
         key = np.rint(key.reshape(len(T), -1) * 1e6).astype(np.int64)
