@@ -546,14 +546,12 @@ def hopeless_rungs(collides: Callable[[np.ndarray], np.ndarray] | None, position
     ``collides.held_blocked(frames)``, :meth:`curvslice.collision.CollisionScene.held_blocked`): then
     every node of the rung collides, at p and at every p whose θ samples nest in it; all False
     without that test. θ samples are tried one at a time over the rungs still blocked."""
-    test = getattr(collides, "held_blocked", None)
     out = np.zeros(len(positions), bool)
-    if test is None or not len(positions):
+    if getattr(collides, "held_blocked", None) is None or not len(positions):
         return out
     left = np.arange(len(positions))
-    thetas = rotation_samples(p)
-    for theta in thetas:
-        left = left[np.asarray(test(deposition_frames(positions[left], normals[left], np.array([theta]))[:, 0]), bool)]
+    for theta in rotation_samples(p):
+        left = left[held_frames(collides, positions[left], normals[left], np.full(len(left), theta))]
         if not len(left):
             return out
     out[left] = True
