@@ -218,7 +218,7 @@ def _beaded_pieces(r: LayerRings, width: float, start: np.ndarray | None = None,
 def _sliver_widths(r: LayerRings, paths: LayerPaths, width: float) -> list[np.ndarray]:
     """The bead widths of :func:`_beaded_pieces`' ``paths`` widened over the slivers the fits leave
     (:func:`~curvslice.toolpaths.beads.fill_slivers` on the layer's surface samples); ``paths`` unchanged."""
-    return fill_slivers(r.samples[0], paths.pieces, paths.widths, width) if paths.pieces else paths.widths
+    return fill_slivers(r.samples[0], paths.pieces, paths.widths, width, inner=~r.samples[2]) if paths.pieces else paths.widths
 
 
 def _finish_piece(piece: np.ndarray, widths: np.ndarray, reverse: bool, width: float) -> tuple[np.ndarray, np.ndarray]:
