@@ -1,5 +1,6 @@
 """Beads over what the passes leave open (issue 18): the last widening of a layer's beads reaches every open
-sample up to the halfway line of the free space between two beads."""
+sample up to the halfway line of the free space between two beads, and a sample the print pulls onto the
+layer keeps its bead where it takes nothing from another."""
 
 from __future__ import annotations
 
@@ -66,3 +67,29 @@ def test_a_bead_grows_to_the_edge_of_a_neighbour_that_cannot_grow():
     edge = 1.5 - 0.8
     assert np.all(0.5 * grown[1][inner] <= edge + 1e-9) and np.mean(0.5 * grown[1][inner]) >= edge - 0.1
 
+
+def test_a_sample_pulled_onto_the_layer_keeps_its_bead_short_of_the_others():
+    """A pass end the fit put 0.3 w past the layer's edge is printed on the edge. With another pass's bead
+    just ahead of the edge it narrows to stay short of that bead, but never below the fitted bead less
+    twice the pull (the printed disc then lies inside the fitted one); with nothing near it keeps its bead
+    (what lies past the edge still covers the layer around the end); a chord's sample dropped onto a
+    curved layer along its normal keeps its bead."""
+    from curvslice.toolpaths.plan import _pulled_beads
+
+    width = 1.0
+    end = np.c_[np.linspace(4.0, 8.0, 5), np.zeros(5), np.zeros(5)]  # pass 0, its end at x = 8 on the edge
+    fitted = end.copy()
+    fitted[-1, 0] += 0.3  # where the fit had put it
+    normals = np.tile([0.0, 0.0, 1.0], (5, 1))
+    bead = np.full(5, 1.2)
+    alone = _pulled_beads(fitted, end, normals, bead, np.zeros(5, int), width)
+    assert np.allclose(alone, bead)
+    for gap in (0.9, 1.2, 1.5):  # pass 1 crosses the end at this distance ahead of the printed end
+        other = np.c_[np.full(5, 8.0 + gap), np.linspace(-2.0, 2.0, 5), np.zeros(5)]
+        printed, was = np.vstack([end, other]), np.vstack([fitted, other])
+        out = _pulled_beads(was, printed, np.tile([0.0, 0.0, 1.0], (10, 1)), np.full(10, 1.2), np.repeat([0, 1], 5), width)
+        room = gap - 0.6  # to the edge of pass 1's bead
+        assert out[4] == pytest.approx(max(1.2 - 2 * 0.3, min(1.2, 2 * room)))
+        assert np.allclose(out[:4], 1.2) and np.allclose(out[5:], 1.2)
+    dropped = _pulled_beads(end + [0.0, 0.0, 0.05], end, normals, bead, np.zeros(5, int), width)
+    assert np.allclose(dropped, bead)
