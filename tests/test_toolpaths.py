@@ -597,7 +597,7 @@ def test_fill_slivers_reaches_past_tips_without_new_overlap(monkeypatch):
         ids = np.repeat(np.arange(len(result.pieces)), [len(p) for p in result.pieces])
         return layer_cover(mesh, pos, ids, width, seed=1, bead=np.concatenate(result.widths))
     coverage, overlap = measure()
-    monkeypatch.setattr("curvslice.toolpaths.plan.fill_slivers", lambda x, pieces, widths, w: widths)
+    monkeypatch.setattr("curvslice.toolpaths.plan.fill_slivers", lambda x, pieces, widths, w, **kw: widths)
     plain_coverage, plain_overlap = measure()
     assert coverage >= plain_coverage + 0.005
     assert overlap <= plain_overlap + 0.005

@@ -1,5 +1,5 @@
-"""Tool-path ends (issue 18): a lone dot's pass covers its blob whatever its shape, and a pass end stops
-where its round cap touches the bead of another pass."""
+"""Tool-path ends (issue 18): a lone dot's pass covers its blob whatever its shape, so does a lone round thin
+loop's whatever its turn, and a pass end stops where its round cap touches the bead of another pass."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import shapely.geometry as sg
 
 from curvslice.toolpaths import layer_paths
 from curvslice.toolpaths.beads import trim_ends
-from curvslice.toolpaths.constants import END_DEPTH
+from curvslice.toolpaths.constants import DOT_RING, END_DEPTH
 from curvslice.verify.toolpaths import layer_cover
 from test_toolpaths import polygon_mesh
 
@@ -53,3 +53,26 @@ def test_a_pass_ending_at_another_beads_side_stops_where_its_cap_touches_it():
     assert touch - END_DEPTH * 1.2 - 1e-9 <= gap <= touch - END_DEPTH * 1.2 + step + 1e-9
     assert np.allclose(pieces[1][0], stem[0]) and np.allclose(pieces[0], across) and np.allclose(pieces[2], side)
     assert len(pieces[1]) < len(stem) and np.all(pieces[1][:, 1] >= gap - 1e-9)  # trimmed, not bent
+
+
+@pytest.mark.parametrize("turn", [0, 40, 90, 135])
+def test_a_lone_round_thin_loop_is_printed_along_its_blob(turn):
+    """An elliptic blob 2.8 × 1.8 w on a layer as thick as a width: its one ring (at the first level) is
+    longer than a dot's (``DOT_RING``), round, and rises less than :func:`thin_rise` -- a lone round thin
+    loop. Whatever its turn, it is printed as one chord across the blob whose bead covers >= 95 % of it
+    without covering any of it twice (cheburashka 0.8 layer 69, a blob 2.3 × 1.8 w: its loop's centre
+    line left a wedge to a gap pass whose bead overlapped the centre line's, 5.9 % overlap)."""
+    from curvslice.toolpaths.plan import layer_rings
+    from curvslice.toolpaths.rings import lone_thin_loop
+
+    width = 1.0
+    shape = shapely.affinity.scale(sg.Point(0, 0).buffer(1.0, 32), 1.4, 0.9)
+    mesh = polygon_mesh(shapely.affinity.rotate(shape, turn, origin=(0, 0)), 0.05)
+    floor = lambda p: np.full(len(p), width)  # noqa: E731
+    (ring,) = layer_rings(mesh, width, floor).rings
+    assert ring.round and ring.length >= DOT_RING * width and lone_thin_loop(ring, width)
+    result = layer_paths(mesh, width, min_bead=floor)
+    assert len(result.pieces) == 1
+    pos = result.pieces[0]
+    coverage, overlap = layer_cover(mesh, pos, np.zeros(len(pos), int), width, seed=1, bead=result.widths[0])
+    assert coverage >= 0.95 and overlap <= 0.01

@@ -191,8 +191,9 @@ FIT_STEP = 0.1
 FIT_SAMPLE = 0.02
 FIT_HALF = 3
 #: Added to each side of a fitted strip (widths): even the lattice's farthest sample falls short of
-#: the strip's edge; also kept between a widened bead and its neighbour's
-#: (:func:`~curvslice.toolpaths.beads.fill_slivers`).
+#: the strip's edge. (:func:`~curvslice.toolpaths.beads.fill_slivers` keeps none: two beads it widens meet
+#: at the halfway line between them, where a margin either side left a hairline 0.02 w wide along every
+#: pair of passes it widened -- bunny 1.0 layer 44: 95.5 -> 95.9 % without it.)
 FIT_MARGIN = 0.01
 #: A fitted pass moves at most this many widths sideways onto its strip: passes lie about a width
 #: apart, so a larger shift would take over a neighbour's strip. Also what a kept pass may shift to
@@ -207,7 +208,7 @@ REDUNDANT_LENGTH = 4.0
 #: notice with its 10,000 samples (tip passes covering less had added ~20 % pieces and jumps for
 #: almost no coverage: kitten 359 → 441 pieces).
 MINOR_SHARE = 0.005
-#: :func:`~curvslice.toolpaths.beads.fill_slivers` widens a bead up to the bead of any other pass:
+#: :func:`~curvslice.toolpaths.beads.fill_slivers` widens a bead towards the bead of any other pass:
 #: another piece, or the same piece more than this many beads (at least widths) away along it --
 #: a spiral's next ring, not the bead's own continuation.
 SAME_PASS_BEADS = 2.0

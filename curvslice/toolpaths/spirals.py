@@ -108,7 +108,8 @@ def _dot_centre(ring: Ring) -> np.ndarray:
     return ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
 
 
-def _dot_chord(ring: Ring, width: float, anchor: np.ndarray, border: np.ndarray | None = None) -> np.ndarray:
+def _dot_chord(ring: Ring, width: float, anchor: np.ndarray, border: np.ndarray | None = None,
+               chords: int | None = None) -> np.ndarray:
     """A lone dot's pass: chords across its blob in the plane of its ring, walked to and fro from the end
     nearest to ``anchor`` (where the previous piece ended). The blob is the ring's convex hull grown by
     the reach of its beads outwards: to the layer's edge (an outermost ring, ``FIRST_LEVEL`` widths) or to
@@ -129,7 +130,9 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray, border: np.ndarray 
     widest, round ends) covers most of the blob. A straight chord along the narrowest breadth, centred
     in the hull's band, left two corners of a pentagonal blob 2.2 × 1.5 w open (rocker-arm 0.8 layer 98:
     90.3 % coverage), and which way a round blob's slivers fall (along flats or across corners, homer
-    0.8 layer 62, an octagon 1.6 w across) is decided by the same area."""
+    0.8 layer 62, an octagon 1.6 w across) is decided by the same area. ``chords``: their number where it
+    is known (a lone thin loop: one, whose bead spans the loop by :func:`~curvslice.toolpaths.rings.thin_rise`),
+    else from the blob's breadth as above."""
     centre = ring.points.mean(axis=0)
     plane = np.linalg.svd(ring.points - centre, full_matrices=False)[2][:2]
     flat = (ring.points - centre) @ plane.T
@@ -143,7 +146,8 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray, border: np.ndarray 
     # half the breadth the dot's beads must fill: from its ring inwards to the top, and outwards
     outward = min(ring.level, 0.5 * width)
     rise = ring.top - ring.level if np.isfinite(ring.top) else 0.5 * breadth[k]  # (a spliced ring: its own breadth)
-    chords = max(int(np.ceil((2.0 * (rise + outward) - (OPEN_GAP - 0.5) * width) / (BEAD_RANGE[1] * width))), 1)
+    if chords is None:
+        chords = max(int(np.ceil((2.0 * (rise + outward) - (OPEN_GAP - 0.5) * width) / (BEAD_RANGE[1] * width))), 1)
     if chords == 1:
         blob = shapely.Polygon(hull).buffer(outward)
         if border is not None and len(border):  # the layer's edge around the ring: the corners its contour rounds off
@@ -300,7 +304,13 @@ class _Builder:
             hosted.setdefault(0, []).extend(siblings)
         if len(rings) == 1 and not hosted and lone_thin_loop(rings[0], self.w):
             # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
-            # as the region (fit_beads), instead of two sides printed over each other
+            # as the region (fit_beads), instead of two sides printed over each other; a round one is a
+            # blob, whose farthest pair of points is any diameter: the centre line of the blob, as a lone
+            # dot's one chord, in the direction its bead covers most of it (cheburashka 0.8 layer 69: the
+            # diameter across left a wedge of the blob to a gap pass whose bead, as wide as the layer is
+            # thick, overlapped the centre line's: 5.9 % overlap; one chord: 0 %, coverage 95.1 %)
+            if rings[0].round and rings[0].length >= DOT_RING * self.w:
+                return _dot_chord(rings[0], self.w, anchor, self.edge, chords=1)
             return loop_centre_line(rings[0].points)
         arcs: list[np.ndarray] = []
         n = len(rings)
