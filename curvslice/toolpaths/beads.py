@@ -366,15 +366,16 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
         return widths
     # (a bead claims at most what it asks for, so beads farther apart than twice the largest ask never meet)
     pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(2.0 * want.max()), output_type="coo_matrix")
-    owner, other = owners[pairs.row], pairs.col
+    owner, other, dist = owners[pairs.row], pairs.col, pairs.data
     far = (label[other] != label[owner]) | (np.abs(key[other] - key[owner])
                                             > SAME_PASS_BEADS * np.maximum(width, 2.0 * half[other]))
+    owner, other, dist = owner[far], other[far], dist[far]  # (most pairs lie along one pass)
     # up to the other bead's edge as it stands once grown by what it claims: what it asks for, at most
     # up to the halfway line of the free space between the two (so two beads that both ask for it split it)
-    halfway = 0.5 * (pairs.data + half[other] - half[owner])
+    halfway = 0.5 * (dist + half[other] - half[owner])
     claim = np.maximum(half[other], np.minimum(want[other], halfway))
     limit = np.full(len(pts), np.inf)
-    np.minimum.at(limit, owner[far], (pairs.data - claim)[far])
+    np.minimum.at(limit, owner, dist - claim)
     grown = half.copy()
     grown[owners] = np.clip(np.minimum(want[owners], limit[owners]), half[owners], widest)
     return np.split(2.0 * grown, np.cumsum([len(p) for p in pieces])[:-1])
