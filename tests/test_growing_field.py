@@ -5,13 +5,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import trimesh
 
 from curvslice.convex_front import grow, hull_of, inside, newly_inside, plane_distance
 from curvslice.growing_field import ASN_OFFSETS, growing_field
 from curvslice.peeling_field import peeling_field
 from curvslice.platform import disc_platform
 from curvslice.solid import load_solid
-from curvslice.verify.field import accessibility_violations, support_violations
+from curvslice.verify.field import accessibility_violations, conservative_misses, support_violations
 from curvslice.voxelize import voxelize
 
 MODELS = Path(__file__).resolve().parents[1] / "models"
@@ -102,3 +103,20 @@ def test_real_kitten_at_coarse_voxels_is_fully_reached_and_verified(shared_model
     grid, platform, peel, g, stats = _field(shared_model("kitten"), 2.0, "pg-sp-gcfa")
     assert stats.missed == 0 and _verified(grid, platform, g)
     assert peel[grid.occupied].min() == 1
+
+
+def test_conservative_check_counts_a_face_on_a_voxel_face_inside_and_a_point_off_it_outside(tmp_path):
+    """verify's H ⊂ H̄ test: samples of a box whose underside lies exactly on a voxel face (z = 2w, the
+    voxels below it empty, as under an overhang) are inside H̄ whichever way their rounding falls (the
+    test tried only the voxel below a sample it found on a face); the same box reaching one voxel lower,
+    against the same voxels, has samples outside."""
+    w = 1.6
+    occupied = np.zeros((4, 4, 13), bool)
+    occupied[:, :, 10:] = True  # voxel centres at 0.8, 2.4, ...: the occupied ones span z 16 .. 20.8 mm
+    origin = np.full(3, 0.5 * w)
+    box = trimesh.creation.box(bounds=[[0.5, 0.5, 16.0], [5.9, 5.9, 20.0]])  # (16 - 0.8) / 1.6 rounds below 9.5
+    box.export(tmp_path / "on_face.stl")
+    assert conservative_misses(occupied, origin, w, tmp_path / "on_face.stl")[0] == 0
+    lower = trimesh.creation.box(bounds=[[0.5, 0.5, 14.0], [5.9, 5.9, 20.0]])
+    lower.export(tmp_path / "lower.stl")
+    assert conservative_misses(occupied, origin, w, tmp_path / "lower.stl")[0] > 0
