@@ -11,6 +11,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -520,26 +521,36 @@ def _fill(
         tries = [_fill_try(robot, cell, positions, normals, dt, elapsed, a[todo], b[todo], theta_a[todo],
                            theta_b[todo], branch[todo], collides, circ, chosen, sign * bump)
                  for sign in ((1.0,) if bump == 0 else (1.0, -1.0))]
-        asked += sum(t[-1] for t in tries)
-        ok = np.array([t[0] for t in tries])  # (signs, G)
-        cost = np.where(ok, np.array([t[1] for t in tries]), np.inf)
+        asked += sum(t.asked for t in tries)
+        cost = np.array([np.where(t.fits, t.cost, np.inf) for t in tries])  # (signs, G)
         pick = np.argmin(cost, axis=0)
-        for s, (fit, _, rows, gap, q, _) in enumerate(tries):
-            mine = fit & (pick == s)
-            take = mine[gap]
-            chosen[rows[take]] = q[take]
-            link[rows[take]] = True
+        for s, t in enumerate(tries):
+            mine = t.fits & (pick == s)
+            take = mine[t.gap]
+            chosen[t.rows[take]] = t.q[take]
+            link[t.rows[take]] = True
             link[b[todo[mine]]] = True
             good[todo[mine]] = True
     return good, asked
 
 
+class _FillTry(NamedTuple):
+    """One try of :func:`_fill` over G gaps: whether each fits and its Eq. 3.4 cost (G,), the gaps'
+    inner rows with the gap of each and their joints, and the collision checks made."""
+
+    fits: np.ndarray
+    cost: np.ndarray
+    rows: np.ndarray
+    gap: np.ndarray
+    q: np.ndarray
+    asked: int
+
+
 def _fill_try(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, dt: np.ndarray,
               elapsed: np.ndarray, a: np.ndarray, b: np.ndarray, theta_a: np.ndarray, theta_b: np.ndarray,
               branch: np.ndarray, collides: Callable[[np.ndarray], np.ndarray] | None, circ: np.ndarray,
-              chosen: np.ndarray, bump: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """One try of :func:`_fill` with bump height ``bump``: per gap whether it fits and its Eq. 3.4
-    cost (G,), and the inner rows, their gap and their joints; checks made."""
+              chosen: np.ndarray, bump: float) -> _FillTry:
+    """One try of :func:`_fill` with bump height ``bump``."""
     inner = b - a - 1
     gap = np.repeat(np.arange(len(a)), inner)
     rows = a[gap] + 1 + np.arange(len(gap)) - np.repeat(np.cumsum(inner) - inner, inner)
@@ -564,7 +575,7 @@ def _fill_try(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.n
         hit[test] = collides(q[test])
         asked = int(test.sum())
         good &= np.bincount(gap, hit, len(a)) == 0
-    return good, cost, rows, gap, q, asked
+    return _FillTry(good, cost, rows, gap, q, asked)
 
 
 def _timestamps(q: np.ndarray, segment: np.ndarray, dt: np.ndarray, max_speed: float) -> np.ndarray:

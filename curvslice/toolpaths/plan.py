@@ -23,7 +23,7 @@ from curvslice.toolpaths.beads import fill_slivers, layer_beads, surface_samples
 from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, MAX_SHIFT,
                                            SUBDIVIDE_EDGE, THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
 from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
-from curvslice.toolpaths.resampling import _room, extrusion_amounts, resample
+from curvslice.toolpaths.resampling import bead_room, extrusion_amounts, resample
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands, split_pinches
 from curvslice.toolpaths.spirals import connected_spirals
 from curvslice.toolpaths.stacked import piece_labels
@@ -461,7 +461,7 @@ def _pulled_beads(fitted: np.ndarray, printed: np.ndarray, normals: np.ndarray, 
     a strip a width wide whose pieces meet end to end: ends pulled back 0.2-0.4 w, 4.7 % overlap). Its
     bead keeps its width short of the bead of every other pass as the segments lay them (another piece,
     or the same one more than ``SAME_PASS_BEADS`` beads along it, as
-    :func:`~curvslice.toolpaths.resampling.extrusion_amounts` raises a bead), and narrows no further
+    :func:`~curvslice.toolpaths.resampling.extrusion_amounts` raises a bead: :func:`~curvslice.toolpaths.resampling.bead_room`), and narrows no further
     than by ``2·m``, where the printed disc lies within the fitted one and takes nothing the fitted bead
     did not (fertility 0.8 layer 13: 3.6 %). Only the move within the layer's tangent plane counts (a
     chord of a curved pass drops onto it along the normal, its bead still reaching as far to either
@@ -475,7 +475,7 @@ def _pulled_beads(fitted: np.ndarray, printed: np.ndarray, normals: np.ndarray, 
     seg = np.r_[0.0, np.linalg.norm(np.diff(printed, axis=0), axis=1)]
     first = np.r_[True, pid[1:] != pid[:-1]]
     laid = np.where(first, 0.0, np.r_[bead[0], 0.5 * (bead[1:] + bead[:-1])])  # each segment at its ends' mean
-    room = _room(printed, seg, first, laid, pulled, bead[pulled], None)
+    room = bead_room(printed, seg, first, laid, pulled, bead[pulled], None)
     out = bead.copy()
     out[pulled] = np.maximum(bead[pulled] - 2.0 * along[pulled], np.minimum(bead[pulled], room))
     return out

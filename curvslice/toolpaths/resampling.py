@@ -66,7 +66,7 @@ def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.
     if len(short):
         prev_w = np.where(first, -np.inf, np.r_[-np.inf, w[:-1]])[short]
         next_w = np.where(np.r_[first[1:], True], -np.inf, np.r_[w[1:], -np.inf])[short]
-        target = np.minimum(w[short], _room(pos, seg, first, b, short, w[short], layer))
+        target = np.minimum(w[short], bead_room(pos, seg, first, b, short, w[short], layer))
         k = np.where(prev_w >= next_w, short, short + 1)  # the segment towards the wider neighbour
         ok = (target > b[np.minimum(k, len(b) - 1)]) & (k < len(b)) & ((k == short) | ~np.r_[first, True][k])
         b = b.copy()
@@ -76,8 +76,8 @@ def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.
     return e
 
 
-def _room(pos: np.ndarray, seg: np.ndarray, first: np.ndarray, laid: np.ndarray, at: np.ndarray, want: np.ndarray,
-          layer: np.ndarray | None) -> np.ndarray:
+def bead_room(pos: np.ndarray, seg: np.ndarray, first: np.ndarray, laid: np.ndarray, at: np.ndarray, want: np.ndarray,
+              layer: np.ndarray | None) -> np.ndarray:
     """Twice the room from each sample ``at`` (asking for widths ``want``) to the nearest edge of another
     pass's bead as ``laid`` per segment (another piece of the same ``layer``, or the same piece
     more than ``SAME_PASS_BEADS`` of that bead along it): the widest bead laid there without covering

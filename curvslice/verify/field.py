@@ -80,6 +80,10 @@ def accessibility_violations(growing: np.ndarray, origin: np.ndarray, voxel_size
     return found, deepest
 
 
+#: voxels within which a surface sample counts as lying on a voxel face (:func:`conservative_misses`)
+FACE_TOLERANCE = 1e-7
+
+
 def conservative_misses(occupied: np.ndarray, origin: np.ndarray, voxel_size: float, solid_path: Path,
                         samples: int = SURFACE_SAMPLES) -> tuple[int, int]:
     """Surface samples of the solid that fall outside every occupied (closed) voxel."""
@@ -101,9 +105,6 @@ def conservative_misses(occupied: np.ndarray, origin: np.ndarray, voxel_size: fl
         hit[sel] |= occupied[idx[sel, 0], idx[sel, 1], idx[sel, 2]]
     return int((~hit).sum()), len(pts)
 
-
-#: voxels within which a surface sample counts as lying on a voxel face (:func:`conservative_misses`)
-FACE_TOLERANCE = 1e-7
 
 
 def checks(outdir: Path) -> list[Check] | None:
