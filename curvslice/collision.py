@@ -15,6 +15,7 @@ pose (for a cylinder or cone, only on its axis and centre): fcl tests each disti
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import fcl
@@ -84,6 +85,11 @@ def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[bytes]]:
     return first, group, [key[i].tobytes() for i in first]
 
 
+def _keys(key: np.ndarray) -> list[bytes]:
+    """The bytes of each row of ``key`` (n, ...) rounded to 1e-6 (µm, µrad), as :meth:`CollisionScene._remembered` names them."""
+    return [row.tobytes() for row in np.rint(key.reshape(len(key), -1) * 1e6).astype(np.int64)]
+
+
 def rotation_core(body: Body) -> tuple[fcl.CollisionGeometry, np.ndarray] | None:
     """The part of an extruder body (pose in the nozzle frame N) that every rotation θ about the
     nozzle axis (N's z, Eq. 4.3) keeps inside the body: a cylinder or cone on the axis is its own
@@ -105,6 +111,31 @@ def rotation_core(body: Body) -> tuple[fcl.CollisionGeometry, np.ndarray] | None
     pose = np.eye(4)
     pose[2, 3] = t[2]
     return fcl.Cylinder(radius, float(body.dims[2])), pose
+
+
+#: a box's sweep cylinder (:func:`rotation_sweep`) is used while its cross-section is at most this many
+#: times the box's (the UR5 cell's heater block: 1.6; the mount beam, far off the axis: 34)
+SWEEP_RATIO = 3.0
+
+
+def rotation_sweep(body: Body) -> tuple[fcl.CollisionGeometry, np.ndarray] | None:
+    """The cylinder about the nozzle axis that holds an extruder box (pose in the nozzle frame N) at
+    every rotation θ about that axis (Eq. 4.3): the box's height, radius its farthest edge from the
+    axis. Where it meets nothing, neither does the box at any θ, so one fcl test per nozzle placement
+    answers all rotations (§4.3.1); ``None`` for a box not along the axis, or one whose sweep is more
+    than :data:`SWEEP_RATIO` times its cross-section (it would meet too much to help). Returns the
+    fcl geometry and its pose in N."""
+    R, t = body.pose[:3, :3], body.pose[:3, 3]
+    if body.kind != "box" or abs(abs(R[2, 2]) - 1.0) >= 1e-9:
+        return None
+    axis = R.T @ -t  # the nozzle axis's point at the box centre's height, box frame
+    dx, dy, dz = (float(d) for d in body.dims)
+    radius = float(np.hypot(dx / 2 + abs(axis[0]), dy / 2 + abs(axis[1])))
+    if np.pi * radius ** 2 > SWEEP_RATIO * dx * dy:
+        return None
+    pose = np.eye(4)
+    pose[2, 3] = t[2]
+    return fcl.Cylinder(radius, dz), pose
 
 
 def platform_mesh(cell: Workcell, platform_vertices: np.ndarray | None = None) -> trimesh.Trimesh:
@@ -152,6 +183,7 @@ class CollisionScene:
         self.links = [_mesh_shape(s.link, s.mesh) for s in robot.links]
         self.static = []
         self.static_poses = []
+        self._extruder = list(cell.extruder)
         for body in cell.extruder:
             self.static.append(_body_shape(body))
             self.static_poses.append(cell.nozzle @ body.pose)
@@ -182,6 +214,19 @@ class CollisionScene:
         cores = [rotation_core(body) for body in cell.extruder]
         self._cores = [(fcl.CollisionObject(geom, fcl.Transform()), pose, float(np.hypot(geom.radius, geom.lz / 2)))
                        for geom, pose in filter(None, cores)]  # with the radius of a ball around each
+        # the extruder bodies that are their own rotation core (a cylinder or cone on the axis):
+        # blocked() tests them exactly as _relative_answers would, so its free frames answer them
+        self._own_core = [s for s, (body, core) in enumerate(zip(cell.extruder, cores))
+                          if core is not None and body.kind in ("cylinder", "cone")]
+        # per static body: its sweep (rotation_sweep) as a placed fcl object and its pose in the
+        # body's own frame (None: none)
+        self._sweeps: list[tuple[fcl.CollisionObject, np.ndarray] | None] = [None] * len(self.static)
+        for s, body in enumerate(cell.extruder):
+            sweep = rotation_sweep(body)
+            if sweep is not None:
+                obj = fcl.CollisionObject(sweep[0], fcl.Transform())
+                _set(obj, cell.nozzle @ sweep[1])
+                self._sweeps[s] = (obj, np.linalg.inv(body.pose) @ sweep[1])
         self._build_pairs()
 
     def set_part(self, mesh: trimesh.Trimesh | None) -> None:
@@ -234,6 +279,11 @@ class CollisionScene:
                 _set(obj, placed[i])
                 out[i] = any(fcl.collide(obj, self.carried[k].obj, request, fcl.CollisionResult())
                              for k in np.flatnonzero(near[i]))
+        free = frames[~out]
+        for s in self._own_core if len(free) else ():  # fcl's answer for these bodies at every θ of a free frame: apart
+            names = _keys((free @ self._extruder[s].pose)[:, :3, 2:])
+            for answers in self._answers:
+                answers.setdefault(s, {}).update(dict.fromkeys(names, 0))
         return out
 
     def held_blocked(self, frames: np.ndarray) -> np.ndarray:
@@ -387,28 +437,46 @@ class CollisionScene:
         branch) share them."""
         c, s = self._carried_of[k], self._static_of[k]
         T = inverse @ self.static_poses[s]  # the static body in the platform frame
-        key = T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :]
-        key = np.rint(key.reshape(len(T), -1) * 1e6).astype(np.int64)
-        first, group, names = _distinct(key)
-        known = self._answers[c].setdefault(s, {})
+        out = np.zeros(len(T), bool)
+        rows = np.arange(len(T))
+        if self._sweeps[s] is not None:  # first its sweep (rotation_sweep), one answer for every θ
+            obj, offset = self._sweeps[s]
+            rows = rows[self._remembered(c, ("sweep", s), (T @ offset)[:, :3, 2:], placed,
+                                         lambda P: self._test_pair(P, k, obj))]
+            if not len(rows):
+                return out
+            T, placed = T[rows], placed[rows]
+        out[rows] = self._remembered(c, s, T[:, :3, 2:] if self._symmetric[s] else T[:, :3, :], placed,
+                                     lambda P: self._test_pair(P, k))
+        return out
+
+    def _remembered(self, c: int, name, key: np.ndarray, placed: np.ndarray,
+                    test: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """(n,) bool: the remembered answers ``self._answers[c][name]`` by ``key`` (n, ...) (a static
+        body's pose in the platform frame, µm and µrad), ``test`` on the carried body ``placed`` at the
+        first row of each new one."""
+        first, group, names = _distinct(np.rint(key.reshape(len(key), -1) * 1e6).astype(np.int64))
+        known = self._answers[c].setdefault(name, {})
         found = np.array([known.get(name, -1) for name in names], np.int8)
         todo = np.flatnonzero(found < 0)
         if len(todo):
-            found[todo] = self._test_pair(placed[first[todo]], k)
+            found[todo] = test(placed[first[todo]])
             known.update(zip([names[i] for i in todo], found[todo].tolist()))
         return found[group] > 0
 
-    def _test_pair(self, placed: np.ndarray, k: int) -> np.ndarray:
+    def _test_pair(self, placed: np.ndarray, k: int, fixed: fcl.CollisionObject | None = None) -> np.ndarray:
         """fcl on pair ``k`` (a carried body against a static one), the carried body at ``placed``
-        (n, 4, 4)."""
+        (n, 4, 4); with ``fixed``, against that placed object instead (a static body's sweep)."""
         pa, pb = self.pairs[k]
-        moving, fixed = self.shapes[pa].obj, self.shapes[pb].obj
+        moving = self.shapes[pa].obj
+        other = self.shapes[pb].obj if fixed is None else fixed
         request = fcl.CollisionRequest()
         found = np.zeros(len(placed), bool)
         for r, T in enumerate(placed):
             _set(moving, T)
-            found[r] = fcl.collide(moving, fixed, request, fcl.CollisionResult())
-        self._hits[k] += found.sum()
+            found[r] = fcl.collide(moving, other, request, fcl.CollisionResult())
+        if fixed is None:
+            self._hits[k] += found.sum()
         return found
 
     def _inside_box(self, poses: np.ndarray, T_inv: np.ndarray, half: np.ndarray,

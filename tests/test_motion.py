@@ -8,8 +8,9 @@ import dataclasses
 
 import numpy as np
 import pytest
+import trimesh
 
-from curvslice.collision import SMALL_DISTINCT, CollisionScene, _distinct
+from curvslice.collision import SMALL_DISTINCT, CollisionScene, _distinct, rotation_sweep
 from curvslice.kinematics import fk, fk_reference, load_robot
 from curvslice.ladder import (
     DENSE_WINDOW,
@@ -535,7 +536,6 @@ def test_held_frames_and_node_checks_share_fcl_answers_without_changing_them(ur5
     body: asked in either order, with a printed part carried, the answers equal fcl on every pair
     (no memory), and the second asker tests fewer poses with fcl."""
     import fcl
-    import trimesh
 
     robot, cell = ur5
     c, t = _platform_waypoints([0.0, 30.0, 45.0, 55.0, 65.0, 80.0], height=2.0)
@@ -571,11 +571,55 @@ def test_held_frames_and_node_checks_share_fcl_answers_without_changing_them(ur5
     second = fresh()
     tested = []
     inner = second._test_pair
-    second._test_pair = lambda placed, k: tested.append(len(placed)) or inner(placed, k)
+    second._test_pair = lambda placed, k, *fixed: tested.append(len(placed)) or inner(placed, k, *fixed)
     np.testing.assert_array_equal(second.collisions(nodes), node_answers)
     alone = sum(tested)
     np.testing.assert_array_equal(second.held_blocked(frames), want)
     assert sum(tested) - alone < len(frames)  # frames answered from the nodes' relative poses
+
+
+def test_rotation_sweep_holds_the_box_at_every_rotation(ur5):
+    """The sweep cylinder of the UR5 heater block holds the block's corners turned by any θ about the
+    nozzle axis, and touches its farthest edge (radius = half the footprint's diagonal); the mount
+    beam, reaching 440 mm off the axis, has none (its sweep would meet everything)."""
+    _, cell = ur5
+    heater, beam = (b for b in cell.extruder if b.name in ("heater_block", "mount_beam"))
+    geom, pose = rotation_sweep(heater)
+    half = np.asarray(heater.dims) / 2
+    corners = np.array(np.meshgrid(*[[-h, h] for h in half], indexing="ij")).reshape(3, -1).T
+    inside_N = corners @ heater.pose[:3, :3].T + heater.pose[:3, 3]
+    for theta in np.linspace(0, 2 * np.pi, 37):
+        c, s = np.cos(theta), np.sin(theta)
+        turned = inside_N @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]]).T - pose[:3, 3]
+        assert (np.hypot(turned[:, 0], turned[:, 1]) <= geom.radius + 1e-9).all()
+        assert (np.abs(turned[:, 2]) <= geom.lz / 2 + 1e-9).all()
+    assert geom.radius == pytest.approx(np.hypot(half[0], half[1]))
+    assert rotation_sweep(beam) is None
+
+
+def test_blocked_frames_answer_the_axis_bodies_without_changing_answers(ur5):
+    """After :meth:`CollisionScene.blocked` of the waypoints' frames (its free frames answer the
+    nozzle cone and extruder cylinder at every θ from memory), node checks still equal fcl's
+    exhaustive answers (:meth:`CollisionScene.colliding_pairs`), and fewer pair tests reach fcl."""
+    robot, cell = ur5
+    c, t = _platform_waypoints([0.0, 30.0, 45.0, 55.0, 65.0, 80.0], height=2.0)
+    part = trimesh.creation.box((6.0, 30.0, 3.0))
+    part.apply_translation([4.0, 0.0, 1.5])
+    q, ok = ladder(robot, cell, c, t, cell.rotations)
+    nodes = q[ok]
+    counts = []
+    for first_blocked in (False, True):
+        scene = CollisionScene(robot, cell)
+        scene.set_part(part)
+        tested = []
+        inner = scene._test_pair
+        scene._test_pair = lambda placed, k, *fixed: tested.append(len(placed)) or inner(placed, k, *fixed)
+        if first_blocked:
+            blocked = scene.blocked(turned_frames(c, t, np.zeros(len(c))))
+            assert not blocked.all()
+        np.testing.assert_array_equal(scene.collisions(nodes), [bool(x) for x in scene.colliding_pairs(nodes)])
+        counts.append(sum(tested))
+    assert counts[1] < counts[0]
 
 
 def test_distinct_groups_rows_by_value_small_or_sorted():
