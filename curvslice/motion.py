@@ -435,8 +435,22 @@ def _coarse_to_fine(
                               coarse.theta[ca[fill]], coarse.theta[cb[fill]], coarse.branch[ca[fill]], collides, circ,
                               chosen, link)
         checks += asked
+        rest = fill[~filled]
+        banded, asked = _band_fill(robot, cell, positions, normals, dt, elapsed, a[rest], b[rest], coarse.theta[ca[rest]],
+                                   coarse.theta[cb[rest]], coarse.branch[ca[rest]], collides, circ, chosen, link)
+        checks += asked
         done = adjacent.copy()
         done[fill[filled]] = True
+        done[rest[banded]] = True
+        # gaps still open: the band about the whole turn, between kept rungs WIDEN_STEP further out
+        # (the coarse node at a or b may be what blocks the gap)
+        wa, wb = _band_windows(ca[rest[~banded]], cb[rest[~banded]], coarse, WIDEN_STEP)
+        if len(wa):
+            wide, asked = _band_fill(robot, cell, positions, normals, dt, elapsed, idx[wa], idx[wb], coarse.theta[wa],
+                                     coarse.theta[wb], coarse.branch[wa], collides, circ, chosen, link, WIDE_BAND)
+            checks += asked
+            for x, y in zip(wa[wide], wb[wide]):
+                done[(ca >= x) & (cb <= y)] = True
         stretches += [(int(x), int(y), True, True) for x, y in zip(a[~done], b[~done])]
     p_more, asked = _stretches(stretches, idx, dt, search, chosen, link, solutions)
     return chosen, link, solutions, max(p, p_more), checks + asked
@@ -532,6 +546,77 @@ def _fill(
             link[b[todo[mine]]] = True
             good[todo[mine]] = True
     return good, asked
+
+
+#: θ offsets (rad) about the rotation interpolated in time that :func:`_band_fill` gives each waypoint
+BAND = np.radians(np.arange(-90.0, 90.1, 7.5))
+
+
+def _band_fill(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.ndarray, dt: np.ndarray,
+               elapsed: np.ndarray, a: np.ndarray, b: np.ndarray, theta_a: np.ndarray, theta_b: np.ndarray,
+               branch: np.ndarray, collides: Callable[[np.ndarray], np.ndarray] | None, circ: np.ndarray,
+               chosen: np.ndarray, link: np.ndarray, band: np.ndarray = BAND) -> tuple[np.ndarray, int]:
+    """Gaps :func:`_fill` could not fill (rows a[g]..b[g], one motion, one IK branch), each searched as
+    a small ladder of its own (§4.3.1): its ends pinned to their kept nodes, each inner waypoint with
+    the nodes of its branch at θ :data:`BAND` about θ interpolated in time, the shortest path (Eq. 3.4,
+    ξ of Eq. 4.4, lazy collision checks) through all gaps at once (one ladder, no edge between
+    gaps). A gap whose path reaches its end in one motion is filled (``chosen``, ``link`` written): the
+    smooth bumps' search widened to any θ path near the interpolation, at a band's nodes per waypoint
+    where the full ladder of the stretch has 8·2p. Returns filled (G,), checks."""
+    G = len(a)
+    if not G:
+        return np.zeros(0, bool), 0
+    inner = b - a - 1
+    gap = np.repeat(np.arange(G), inner)
+    rows = a[gap] + 1 + np.arange(len(gap)) - np.repeat(np.cumsum(inner) - inner, inner)
+    u = (elapsed[rows] - elapsed[a[gap]]) / np.maximum(elapsed[b[gap]] - elapsed[a[gap]], 1e-300)
+    turn = (theta_b - theta_a + np.pi) % TWO_PI - np.pi
+    K = len(band)
+    qi, ok = ladder_at(robot, cell, np.repeat(positions[rows], K, axis=0), np.repeat(normals[rows], K, axis=0),
+                       ((theta_a[gap] + u * turn[gap])[:, None] + band[None]).ravel(), np.repeat(branch[gap], K))
+    # one ladder: per gap its kept rung a (one node), its inner rungs, its kept rung b (one node)
+    size = inner + 2
+    first = np.cumsum(size) - size
+    at = first[gap] + rows - a[gap]  # the inner rows' rungs
+    q = np.full((size.sum(), K, 6), np.nan)
+    q[first, 0], q[first + size - 1, 0] = chosen[a], chosen[b]
+    q[at] = np.where(ok.reshape(-1, K)[..., None], qi.reshape(-1, K, 6), np.nan)
+    row_of = np.empty(len(q), np.int64)
+    row_of[first], row_of[first + size - 1], row_of[at] = a, b, rows
+    owner = np.repeat(np.arange(G), size)
+    step = np.where(owner[1:] == owner[:-1], dt[np.minimum(row_of[:-1], len(dt) - 1)], 0.0)  # 0 s: no edge
+    node_ok = None if collides is None else (lambda r, k: ~collides(q[r, k]))
+    path, _, asked = shortest_path(q, ~np.isnan(q[..., 0]), step, cell.max_joint_speed, circ, node_ok=node_ok)
+    node, seg = path.node, path.segment
+    whole = (np.bincount(owner, node < 0, G) == 0) & (seg[first] == seg[first + size - 1])
+    take = whole[gap]
+    chosen[rows[take]] = q[at[take], node[at[take]]]
+    link[rows[take]] = True
+    link[b[whole]] = True
+    return whole, asked
+
+
+#: every θ (7.5° apart) about the interpolated one: :func:`_band_fill` between wider ends
+WIDE_BAND = np.radians(np.arange(-180.0, 180.0, 7.5))
+
+
+def _band_windows(ca: np.ndarray, cb: np.ndarray, coarse: "_Found", step: int) -> tuple[np.ndarray, np.ndarray]:
+    """Coarse rungs (x, y) around the open gaps ca[g]..cb[g] (indices into the coarse path): ``step``
+    kept rungs further out each side, merged where they overlap, kept where both ends are on one
+    motion and IK branch of the coarse path (the wider band's pinned ends)."""
+    last = len(coarse.node) - 1
+    x, y = np.clip(ca - step, 0, last), np.clip(cb + step, 0, last)
+    out: list[list[int]] = []
+    for i, j in sorted(zip(x.tolist(), y.tolist())):
+        if out and i <= out[-1][1]:
+            out[-1][1] = max(out[-1][1], j)
+        else:
+            out.append([i, j])
+    w = np.array(out, np.int64).reshape(-1, 2)
+    a, b = w[:, 0], w[:, 1]
+    ok = (coarse.node[a] >= 0) & (coarse.node[b] >= 0) & (coarse.segment[a] == coarse.segment[b]) \
+        & (coarse.branch[a] == coarse.branch[b])
+    return a[ok], b[ok]
 
 
 class _FillTry(NamedTuple):

@@ -31,7 +31,7 @@ from curvslice.ladder import (
     tilted_axes,
     turned_frames,
 )
-from curvslice.motion import (BUMPS, Remembered, _fill, coarse_rungs, deviation_windows, plan_layer, plan_motion,
+from curvslice.motion import (BAND, BUMPS, Remembered, _band_fill, _fill, coarse_rungs, deviation_windows, plan_layer, plan_motion,
                               reach_cone, step_times, unwind)
 from curvslice.workcell import load_workcell, rotation_samples, waypoints_from_flange
 
@@ -669,6 +669,56 @@ def test_early_skips_plan_the_same_layer_as_the_full_search(ur5):
     np.testing.assert_allclose(fast.normals, full.normals, atol=1e-12)
     for motion in (fast, full):
         _assert_realizes(robot, cell, scene, motion, c[motion.index], motion.normals)
+
+
+def test_band_fill_goes_round_a_blocked_range_of_rotations_and_leaves_a_dead_gap_open(ur5):
+    """_band_fill on two gaps in one ladder: where every θ within 22.5° of the interpolation collides
+    at one inner waypoint, its path takes a θ outside that range; every node reproduces its waypoint
+    on the gap's branch, ξ holds on every step, no node collides. A gap whose inner waypoint
+    collides at every band θ stays open and its rows untouched."""
+    robot, cell = ur5
+    c, t = _dome_spiral(200)
+    c, t = c[:17], t[:17]
+    dt = step_times(c, cell.linear_speed, cell.min_step_time)
+    elapsed = np.r_[0.0, np.cumsum(dt)]
+    lo, hi = cell.limits(robot)
+    circ = circular_joints(lo, hi)
+    branch = next(b for b in range(8) if ladder_at(robot, cell, c, t, np.full(17, 0.35), np.full(17, b))[1].all())
+    ends = np.array([0, 8, 16])
+    theta = np.array([0.3, 0.4, 0.5])
+    q_end, ok = ladder_at(robot, cell, c[ends], t[ends], theta, np.full(3, branch))
+    assert ok.all()
+    u = (elapsed[4] - elapsed[0]) / (elapsed[8] - elapsed[0])
+    near = BAND[np.abs(BAND) <= np.radians(22.5) + 1e-9]
+    blocked, _ = ladder_at(robot, cell, np.repeat(c[4:5], len(near), 0), np.repeat(t[4:5], len(near), 0),
+                           0.3 + 0.1 * u + near, np.full(len(near), branch))
+
+    def collides(q):
+        return (np.abs(q[:, None] - blocked[None]).max(axis=2) < 1e-9).any(axis=1)
+
+    chosen = np.full((17, 6), np.nan)
+    chosen[ends] = q_end
+    link = np.zeros(17, bool)
+    filled, asked = _band_fill(robot, cell, c, t, dt, elapsed, ends[:2], ends[1:], theta[:2], theta[1:],
+                               np.full(2, branch), collides, circ, chosen, link)
+    assert filled.all() and link[1:].all() and asked > 0
+    assert not collides(chosen).any()
+    pos, axis = waypoints_from_flange(cell, fk_reference(robot, chosen))
+    assert np.abs(pos - c).max() < 1e-6 and np.abs(axis - t).max() < 1e-9
+    step = joint_steps(chosen[:-1], chosen[1:], circ)[1]
+    assert (step <= cell.max_joint_speed * dt * (1 + 1e-9)).all()
+
+    def dead(q):
+        frames = waypoints_from_flange(cell, fk_reference(robot, q))[0]
+        return np.linalg.norm(frames - c[4], axis=1) < 1e-6  # every pose of waypoint 4
+
+    chosen = np.full((17, 6), np.nan)
+    chosen[ends] = q_end
+    link = np.zeros(17, bool)
+    filled, _ = _band_fill(robot, cell, c, t, dt, elapsed, ends[:2], ends[1:], theta[:2], theta[1:],
+                           np.full(2, branch), dead, circ, chosen, link)
+    assert not filled[0] and filled[1]
+    assert np.isnan(chosen[1:8]).all() and not link[1:9].any() and link[9:].all()
 
 
 def test_a_gap_whose_interpolated_rotation_collides_is_filled_by_a_bump(ur5):
