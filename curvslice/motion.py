@@ -567,10 +567,7 @@ def _band_fill(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.
     if not G:
         return np.zeros(0, bool), 0
     inner = b - a - 1
-    gap = np.repeat(np.arange(G), inner)
-    rows = a[gap] + 1 + np.arange(len(gap)) - np.repeat(np.cumsum(inner) - inner, inner)
-    u = (elapsed[rows] - elapsed[a[gap]]) / np.maximum(elapsed[b[gap]] - elapsed[a[gap]], 1e-300)
-    turn = (theta_b - theta_a + np.pi) % TWO_PI - np.pi
+    gap, rows, u, turn = _gap_rows(a, b, elapsed, theta_a, theta_b)
     K = len(band)
     qi, ok = ladder_at(robot, cell, np.repeat(positions[rows], K, axis=0), np.repeat(normals[rows], K, axis=0),
                        ((theta_a[gap] + u * turn[gap])[:, None] + band[None]).ravel(), np.repeat(branch[gap], K))
@@ -584,7 +581,8 @@ def _band_fill(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.
     row_of = np.empty(len(q), np.int64)
     row_of[first], row_of[first + size - 1], row_of[at] = a, b, rows
     owner = np.repeat(np.arange(G), size)
-    step = np.where(owner[1:] == owner[:-1], dt[np.minimum(row_of[:-1], len(dt) - 1)], 0.0)  # 0 s: no edge
+    # between gaps 0 s: no edge (but from one gap's end to the next one's start where that is the same kept node)
+    step = np.where(owner[1:] == owner[:-1], dt[np.minimum(row_of[:-1], len(dt) - 1)], 0.0)
     node_ok = None if collides is None else (lambda r, k: ~collides(q[r, k]))
     path, _, asked = shortest_path(q, ~np.isnan(q[..., 0]), step, cell.max_joint_speed, circ, node_ok=node_ok)
     node, seg = path.node, path.segment
@@ -619,6 +617,17 @@ def _band_windows(ca: np.ndarray, cb: np.ndarray, coarse: "_Found", step: int) -
     return a[ok], b[ok]
 
 
+def _gap_rows(a: np.ndarray, b: np.ndarray, elapsed: np.ndarray, theta_a: np.ndarray,
+              theta_b: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The rows strictly inside gaps a[g]..b[g]: the gap of each, the rows, their time fraction u of
+    their gap, and per gap the short-arc turn from θ_a to θ_b."""
+    inner = b - a - 1
+    gap = np.repeat(np.arange(len(a)), inner)
+    rows = a[gap] + 1 + np.arange(len(gap)) - np.repeat(np.cumsum(inner) - inner, inner)
+    u = (elapsed[rows] - elapsed[a[gap]]) / np.maximum(elapsed[b[gap]] - elapsed[a[gap]], 1e-300)
+    return gap, rows, u, (theta_b - theta_a + np.pi) % TWO_PI - np.pi
+
+
 class _FillTry(NamedTuple):
     """One try of :func:`_fill` over G gaps: whether each fits and its Eq. 3.4 cost (G,), the gaps'
     inner rows with the gap of each and their joints, and the collision checks made."""
@@ -636,11 +645,7 @@ def _fill_try(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.n
               branch: np.ndarray, collides: Callable[[np.ndarray], np.ndarray] | None, circ: np.ndarray,
               chosen: np.ndarray, bump: float) -> _FillTry:
     """One try of :func:`_fill` with bump height ``bump``."""
-    inner = b - a - 1
-    gap = np.repeat(np.arange(len(a)), inner)
-    rows = a[gap] + 1 + np.arange(len(gap)) - np.repeat(np.cumsum(inner) - inner, inner)
-    u = (elapsed[rows] - elapsed[a[gap]]) / np.maximum(elapsed[b[gap]] - elapsed[a[gap]], 1e-300)
-    turn = (theta_b - theta_a + np.pi) % TWO_PI - np.pi
+    gap, rows, u, turn = _gap_rows(a, b, elapsed, theta_a, theta_b)
     q, ok = ladder_at(robot, cell, positions[rows], normals[rows], theta_a[gap] + u * turn[gap]
                       + bump * np.sin(np.pi * u) ** 2, branch[gap])
     good = np.bincount(gap, ~ok, len(a)) == 0
