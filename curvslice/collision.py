@@ -85,9 +85,10 @@ def _distinct(key: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[bytes]]:
     return first, group, [key[i].tobytes() for i in first]
 
 
-def _keys(key: np.ndarray) -> list[bytes]:
-    """The bytes of each row of ``key`` (n, ...) rounded to 1e-6 (µm, µrad), as :meth:`CollisionScene._remembered` names them."""
-    return [row.tobytes() for row in np.rint(key.reshape(len(key), -1) * 1e6).astype(np.int64)]
+def _rounded(key: np.ndarray) -> np.ndarray:
+    """Rows of ``key`` (n, ...) flattened and rounded to 1e-6 (µm, µrad) as integers: the names of
+    :meth:`CollisionScene._remembered`'s answers (their bytes)."""
+    return np.rint(key.reshape(len(key), -1) * 1e6).astype(np.int64)
 
 
 def rotation_core(body: Body) -> tuple[fcl.CollisionGeometry, np.ndarray] | None:
@@ -281,7 +282,7 @@ class CollisionScene:
                              for k in np.flatnonzero(near[i]))
         free = frames[~out]
         for s in self._own_core if len(free) else ():  # fcl's answer for these bodies at every θ of a free frame: apart
-            names = _keys((free @ self._extruder[s].pose)[:, :3, 2:])
+            names = [row.tobytes() for row in _rounded((free @ self._extruder[s].pose)[:, :3, 2:])]
             for answers in self._answers:
                 answers.setdefault(s, {}).update(dict.fromkeys(names, 0))
         return out
@@ -455,7 +456,7 @@ class CollisionScene:
         """(n,) bool: the remembered answers ``self._answers[c][name]`` by ``key`` (n, ...) (a static
         body's pose in the platform frame, µm and µrad), ``test`` on the carried body ``placed`` at the
         first row of each new one."""
-        first, group, names = _distinct(np.rint(key.reshape(len(key), -1) * 1e6).astype(np.int64))
+        first, group, names = _distinct(_rounded(key))
         known = self._answers[c].setdefault(name, {})
         found = np.array([known.get(name, -1) for name in names], np.int8)
         todo = np.flatnonzero(found < 0)

@@ -332,8 +332,10 @@ def plan_motion(
     ``keep`` (m,) bool (e.g. :func:`coarse_rungs`): coarse-to-fine. The ladder search runs on the kept
     rungs (edges Eq. 4.4 over the summed Δt); between two kept rungs of one motion on one IK branch
     the waypoints take that branch at θ interpolated in time (one IK each), checked for ξ (Eq. 4.4)
-    and collisions; a stretch where that fails (or the coarse path breaks) gets the full ladder search
-    between its two kept nodes (from 2p, inside their :func:`reach_cone` first). ``None``: the full ladder on every rung. ``memo``
+    and collisions, else the same with a smooth bump of θ (:func:`_fill`), else a small ladder of θ
+    about the interpolation (:func:`_band_fill`); a stretch where all that fails (or the coarse path
+    breaks) gets the full ladder search between its two kept nodes (from 2p, inside their
+    :func:`reach_cone` first). ``None``: the full ladder on every rung. ``memo``
     (:class:`curvslice.ladder.RungMemo`): IK nodes shared by the searches (same nodes, solved once).
     """
     positions = np.asarray(positions, float)
@@ -598,7 +600,7 @@ def _band_fill(robot: Robot, cell: Workcell, positions: np.ndarray, normals: np.
 WIDE_BAND = np.radians(np.arange(-180.0, 180.0, 7.5))
 
 
-def _band_windows(ca: np.ndarray, cb: np.ndarray, coarse: "_Found", step: int) -> tuple[np.ndarray, np.ndarray]:
+def _band_windows(ca: np.ndarray, cb: np.ndarray, coarse: _Found, step: int) -> tuple[np.ndarray, np.ndarray]:
     """Coarse rungs (x, y) around the open gaps ca[g]..cb[g] (indices into the coarse path): ``step``
     kept rungs further out each side, merged where they overlap, kept where both ends are on one
     motion and IK branch of the coarse path (the wider band's pinned ends)."""
