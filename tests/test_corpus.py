@@ -44,9 +44,6 @@ KNOWN_FAILURES = {
     "homer": "tool-paths: overlap 12.1 % (layers 16, 18)",
     # fails on main d403461 too (measured with its code on PYTHONPATH, ends6): the nested dot of layer 2
     "cheburashka": "tool-paths: overlap 5.0 % (layer 2)",
-    # added with the skin inset of working_surfaces (9bdb104), which made their layer checks pass; the hollow box
-    # left it when a hole whose bridge carries a ring stayed open (plan._ringed_bridges)
-    "inverted-cone": "tool-paths: overlap 7.0 % (layer 8)",
 }
 
 
