@@ -295,6 +295,15 @@ class _Builder:
         if seam:
             cuts[0] = _seam(rings[0], cuts[0], self.w)
         dots = [r.length < DOT_RING * self.w for r in rings]
+        # an odd chain turns at its innermost ring, reached by the link in from the end of the inward walk and
+        # left by the link out to the start of the outward one, both on the same side of the cut line: a ring
+        # parts them by its own walk across, a dot (its centre) does not, and they converged on it in a V whose
+        # arms lay within a bead of each other from the dot out to the ring around it (inverted cone at 1.5 mm,
+        # layer 8: 7.0 % overlap). Where that ring is the spiral's last walk (a root chain of three; a spliced
+        # spiral's ends must meet at its host's gap, and further out the other links cross the cut the same way),
+        # it is walked the other way round, from the other side of the cut, so the links reach the dot from either
+        # side; the spiral then ends a cut across from its start.
+        turn_dot = host_tangent is None and len(rings) == 3 and dots[2] and not dots[1]
         # children hosted by the innermost ring (branches), root siblings by ring 0
         hosted: dict[int, list[int]] = {}
         last_comp = self.tree.child_comp.get(chain[-1])
@@ -326,7 +335,7 @@ class _Builder:
                 g = self.w
             else:
                 g = float(np.clip(ring.length / CUT_SHARE, CUT_RANGE[0] * self.w, CUT_RANGE[1] * self.w)) if n >= 3 else self.gap
-            if k % 2 == 0:
+            if k % 2 == 0 or turn_dot:
                 start, end, direction = s - g / 2, s + g / 2, -1
             else:
                 start, end, direction = s + g / 2, s - g / 2, +1
