@@ -31,7 +31,7 @@ from curvslice.ladder import (
     tilted_axes,
     turned_frames,
 )
-from curvslice.motion import (BAND, BUMPS, Remembered, _band_fill, _fill, coarse_rungs, deviation_windows, plan_layer, plan_motion,
+from curvslice.motion import (BAND, BUMPS, Remembered, _band_fill, _band_windows, _fill, _Found, coarse_rungs, deviation_windows, plan_layer, plan_motion,
                               reach_cone, step_times, unwind)
 from curvslice.workcell import load_workcell, rotation_samples, waypoints_from_flange
 
@@ -719,6 +719,32 @@ def test_band_fill_goes_round_a_blocked_range_of_rotations_and_leaves_a_dead_gap
                            np.full(2, branch), dead, circ, chosen, link)
     assert not filled[0] and filled[1]
     assert np.isnan(chosen[1:8]).all() and not link[1:9].any() and link[9:].all()
+
+
+def test_band_windows_widen_merge_and_keep_ends_on_one_motion_and_branch():
+    """_band_windows: each open gap widened by ``step`` coarse rungs (clipped to the path), windows that
+    overlap merged into one, and a window kept only where both its ends are on the coarse path, in one
+    motion and on one IK branch (its pinned ends)."""
+    n = 20
+    node = np.zeros(n, int)
+    node[17] = -1  # a rung without a node
+    segment = np.r_[np.zeros(12, int), np.ones(8, int)]  # a split between rungs 11 and 12
+    branch = np.zeros(n, int)
+    branch[8] = 3  # inside a window: no matter
+
+    def windows(ca, cb, step):
+        coarse = _Found(node, segment, np.zeros((n, 6)), np.zeros(n), branch, 15, np.full(n, 8), 0)
+        a, b = _band_windows(np.array(ca), np.array(cb), coarse, step)
+        return list(zip(a.tolist(), b.tolist()))
+
+    # 1-2, 3-4, 6-7 widen to 0-4, 1-6, 4-9 and merge to 0-9; 12-13 and 15-16 to 10-15 and 13-18, merged
+    # to 10-18, which crosses the split
+    assert windows([1, 3, 6, 12, 15], [2, 4, 7, 13, 16], 2) == [(0, 9)]
+    assert windows([13], [14], 1) == [(12, 15)]
+    assert windows([14], [15], 2) == []  # 12-17 ends on the rung without a node
+    assert windows([17], [18], 5) == [(12, 19)]  # clipped to the path's last rung
+    branch[19] = 3
+    assert windows([17], [18], 5) == []  # its ends on two branches
 
 
 def test_a_gap_whose_interpolated_rotation_collides_is_filled_by_a_bump(ur5):
