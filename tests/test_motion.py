@@ -671,19 +671,24 @@ def test_early_skips_plan_the_same_layer_as_the_full_search(ur5):
         _assert_realizes(robot, cell, scene, motion, c[motion.index], motion.normals)
 
 
+def _dome_gap(robot, cell, n: int):
+    """The first ``n`` waypoints of the dome spiral as a gap to fill: positions, axes, step times,
+    elapsed times, the circular joints, and an IK branch that reaches every waypoint at θ = 0.35 rad."""
+    c, t = _dome_spiral(200)
+    c, t = c[:n], t[:n]
+    dt = step_times(c, cell.linear_speed, cell.min_step_time)
+    lo, hi = cell.limits(robot)
+    branch = next(b for b in range(8) if ladder_at(robot, cell, c, t, np.full(n, 0.35), np.full(n, b))[1].all())
+    return c, t, dt, np.r_[0.0, np.cumsum(dt)], circular_joints(lo, hi), branch
+
+
 def test_band_fill_goes_round_a_blocked_range_of_rotations_and_leaves_a_dead_gap_open(ur5):
     """_band_fill on two gaps in one ladder: where every θ within 22.5° of the interpolation collides
     at one inner waypoint, its path takes a θ outside that range; every node reproduces its waypoint
     on the gap's branch, ξ holds on every step, no node collides. A gap whose inner waypoint
     collides at every band θ stays open and its rows untouched."""
     robot, cell = ur5
-    c, t = _dome_spiral(200)
-    c, t = c[:17], t[:17]
-    dt = step_times(c, cell.linear_speed, cell.min_step_time)
-    elapsed = np.r_[0.0, np.cumsum(dt)]
-    lo, hi = cell.limits(robot)
-    circ = circular_joints(lo, hi)
-    branch = next(b for b in range(8) if ladder_at(robot, cell, c, t, np.full(17, 0.35), np.full(17, b))[1].all())
+    c, t, dt, elapsed, circ, branch = _dome_gap(robot, cell, 17)
     ends = np.array([0, 8, 16])
     theta = np.array([0.3, 0.4, 0.5])
     q_end, ok = ladder_at(robot, cell, c[ends], t[ends], theta, np.full(3, branch))
@@ -753,13 +758,7 @@ def test_a_gap_whose_interpolated_rotation_collides_is_filled_by_a_bump(ur5):
     node reproduces its waypoint on the gap's IK branch, ξ holds on every step, and θ leaves the
     interpolation by at most the bump."""
     robot, cell = ur5
-    c, t = _dome_spiral(200)
-    c, t = c[:9], t[:9]
-    dt = step_times(c, cell.linear_speed, cell.min_step_time)
-    elapsed = np.r_[0.0, np.cumsum(dt)]
-    lo, hi = cell.limits(robot)
-    circ = circular_joints(lo, hi)
-    branch = next(b for b in range(8) if ladder_at(robot, cell, c, t, np.full(9, 0.35), np.full(9, b))[1].all())
+    c, t, dt, elapsed, circ, branch = _dome_gap(robot, cell, 9)
     qa, ok = ladder_at(robot, cell, c[[0, 8]], t[[0, 8]], np.array([0.3, 0.4]), np.full(2, branch))
     assert ok.all()
     u = (elapsed[1:8] - elapsed[0]) / (elapsed[8] - elapsed[0])
