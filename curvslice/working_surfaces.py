@@ -261,6 +261,31 @@ def _outside_inset(fa: np.ndarray, fb: np.ndarray, solid_a: np.ndarray, solid_b:
     return np.where((inner <= band[0]) | (inner > band[1]), SKIN_INSET, 0.0)
 
 
+def _beside_own(field: ContinuedField, a: np.ndarray, b: np.ndarray, band: tuple[float, float]) -> np.ndarray:
+    """(n,) bool per grid edge a-b: True unless it leaves H̄ (one end a voxel, the other a ring node)
+    with no voxel of the layer being extracted (G in ``band`` = (lo, hi]) among its voxel end and that
+    voxel's 26 neighbours. A layer's surface is the top of its own material, so it reaches ∂H only
+    beside that material; elsewhere the ring's extrapolation of a steep G (a slab's top rising two
+    G-steps a voxel towards its edge) brackets the isovalues of layers with no material there, and
+    their slivers survived trimming on ∂H (a leaning cylinder at 1.5 mm: layer 12, 4 voxels in all,
+    had 30 faces on the slab's far edge, none within a voxel of its own)."""
+    solid = field.solid_nodes.ravel()
+    leaving = solid[a] != solid[b]
+    out = np.ones(len(a), bool)
+    if not leaving.any():
+        return out
+    end = np.where(solid[a], a, b)[leaving]
+    shape = np.array(field.values.shape)
+    ijk = np.stack(np.unravel_index(end, tuple(shape)), axis=1)
+    own = np.zeros(len(end), bool)
+    for d in itertools.product((-1, 0, 1), repeat=3):
+        n = np.clip(ijk + d, 0, shape - 1)
+        v = field.values[n[:, 0], n[:, 1], n[:, 2]]
+        own |= field.solid_nodes[n[:, 0], n[:, 1], n[:, 2]] & (v > band[0]) & (v <= band[1])
+    out[leaving] = own
+    return out
+
+
 def dual_contour(field: ContinuedField, level: float, band: tuple[float, float] | None = None, *,
                  edges: _Edges | None = None, active: np.ndarray | None = None
                  ) -> tuple[np.ndarray, np.ndarray]:
@@ -296,7 +321,7 @@ def dual_contour(field: ContinuedField, level: float, band: tuple[float, float] 
             # measured from the low end, one G-step per voxel, kept in the owning voxel's half
             from_lo = np.where(lo_in, np.clip(level - f_lo, 0.0, 0.5), np.clip(1 - (f_hi - level), 0.5, 1.0))
             t = np.where(jump, np.where(fa < fb, from_lo, 1 - from_lo), t)
-            keep = ~jump | lo_in | hi_in
+            keep = (~jump | lo_in | hi_in) & _beside_own(field, a, b, band)
             a, b, fa, fb, t = a[keep], b[keep], fa[keep], fb[keep], t[keep]
         # a crossing on an edge leaving H̄ stays in the empty voxel's half (outside H); leaving another
         # layer's voxel it lies inside the empty voxel, off the shared face: that face is on ∂H where a
