@@ -706,6 +706,21 @@ def test_trim_seams_balances_the_caps_lens_against_the_open_wedges():
     assert same is hairpin
 
 
+def test_a_seam_whose_last_segment_hooks_away_is_still_trimmed():
+    """The loop above with its last 0.05 mm turned outwards (a fitted end's hook, the mushroom stem's
+    one-ring layer in the corpus: 6.2 % overlap, its ends 1.47 mm apart under 2.4-2.9 mm beads): the ends'
+    headings are read over half a width of the walk, so it is still a seam and trimmed as without the hook;
+    read from the last segment alone it was no seam and kept both caps over each other."""
+    radius, bead, chord = 8.0, 1.4, 0.5
+    gap = 2.0 * np.arcsin(0.5 * chord / radius)
+    t = np.linspace(gap / 2, 2 * np.pi - gap / 2, 400)
+    loop = np.c_[radius * np.cos(t), radius * np.sin(t), np.zeros_like(t)]
+    hooked = np.vstack([loop, loop[-1] + [0.05, 0.0, 0.0]])  # last step outwards, away from the start
+    assert np.dot(hooked[0] - hooked[-1], hooked[-1] - hooked[-2]) < 0  # the last segment alone: no seam
+    (trimmed,), _ = trim_seams([hooked], [np.full(len(hooked), bead)], 1.0)
+    assert np.linalg.norm(trimmed[-1] - trimmed[0]) == pytest.approx(np.pi / 4 * bead, abs=0.05)
+
+
 def test_fitted_passes_lie_on_a_curved_layer():
     """A strip of a cylinder (radius 0.6 w, folded through 110°, like the tip of a part): fitting an
     off-centre pass shifts it sideways in the tangent plane, which lifted it off the layer (0.07 w
