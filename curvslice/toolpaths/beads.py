@@ -11,7 +11,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from curvslice.executors import query_threads
-from curvslice.orientation import closest_points
+from curvslice.orientation import closest_points, triangle_reach
 from curvslice.toolpaths.constants import (AHEAD_ANGLE, BEAD_RANGE, END_DEPTH, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
                                            OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS, SEAM_CHORD)
 from curvslice.toolpaths.passes import gap_passes
@@ -185,27 +185,41 @@ def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray, 
 
 class _Projector:
     """Closest points on one layer (Eq. 3.3) for :func:`_onto_layer`, with what every call of a layer's
-    fits shares: the centroid KD-tree, the boundary edges, and the answers for points already asked
-    (a refit keeps most passes' points exactly as they were)."""
+    fits shares: the centroid KD-tree and the triangles' reaches, the boundary edges, and the answers for
+    points already asked (a refit keeps most passes' points exactly as they were), by their bytes, sorted."""
 
     def __init__(self, surface: trimesh.Trimesh):
         self.tri = surface.triangles
         self.tree = cKDTree(self.tri.mean(axis=1))
+        self.reach = triangle_reach(self.tri, self.tree)
         self.edge = np.zeros((len(self.tri), 3), bool)  # edge (c, c+1) of each face on the boundary
         border = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
         self.edge[border // 3, border % 3] = True
-        self.known: dict[bytes, tuple[np.ndarray, float, int]] = {}
+        self.keys = np.zeros(0, _ROW)
+        self.on, self.moved, self.face = np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64)
 
     def __call__(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        keys = [row.tobytes() for row in np.ascontiguousarray(pts)]
-        ask = np.array([k not in self.known for k in keys], bool)
-        if ask.any():
-            on, moved, face = closest_points(pts[ask], self.tri, self.tree)
-            for k, a, b, c in zip(np.asarray(keys, object)[ask], on, moved, face):
-                self.known[k] = (a, b, c)
-        got = [self.known[k] for k in keys]
-        return (np.array([g[0] for g in got]).reshape(-1, 3), np.array([g[1] for g in got], float),
-                np.array([g[2] for g in got], np.int64))
+        pts = np.ascontiguousarray(pts, np.float64).reshape(-1, 3)
+        keys = pts.view(_ROW).ravel()
+        ask = ~self._known(keys)
+        new, first = np.unique(keys[ask], return_index=True)
+        if len(new):
+            on, moved, face = closest_points(pts[ask][first], self.tri, self.tree, reach=self.reach)
+            order = np.argsort(np.concatenate([self.keys, new]))
+            self.keys = np.concatenate([self.keys, new])[order]
+            self.on, self.moved, self.face = (np.concatenate([self.on, on])[order], np.concatenate([self.moved, moved])[order],
+                                              np.concatenate([self.face, face])[order])
+        at = np.searchsorted(self.keys, keys)
+        return self.on[at], self.moved[at], self.face[at]
+
+    def _known(self, keys: np.ndarray) -> np.ndarray:
+        """Whether each of ``keys`` (points as :data:`_ROW`) was asked before."""
+        at = np.minimum(np.searchsorted(self.keys, keys), max(len(self.keys) - 1, 0))
+        return self.keys[at] == keys if len(self.keys) else np.zeros(len(keys), bool)
+
+
+#: A point's three coordinates as one opaque value (:class:`_Projector`'s answers are looked up by their bytes).
+_ROW = np.dtype((np.void, 24))
 
 
 def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np.ndarray],
