@@ -100,18 +100,19 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     reach = float(half.max())
     short_tree = cKDTree(pts[own])
     close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=query_threads())[0]))[0]
-    under = short_tree.sparse_distance_matrix(cKDTree(samples[close]), reach, output_type="coo_matrix")
-    near = close[np.unique(under.col[under.data <= half[own][under.row]])]
+    under = short_tree.sparse_distance_matrix(cKDTree(samples[close]), reach, output_type="ndarray")
+    near = close[np.unique(under["j"][under["v"] <= half[own][under["i"]]])]
     if len(near) == 0:
         return keep
     widest = BEAD_RANGE[1] * width
-    hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), max(reach, widest), output_type="coo_matrix")
+    hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), max(reach, widest), output_type="ndarray")
+    hit_row, hit_col, hit_gap = hits["i"], hits["j"], hits["v"]
     # the nearest point of every piece within the widest bead of each sample
-    code = hits.row * len(pieces) + label[hits.col]
-    first = np.lexsort((hits.data, code))
+    code = hit_row * len(pieces) + label[hit_col]
+    first = np.lexsort((hit_gap, code))
     first = first[np.r_[True, code[first][1:] != code[first][:-1]]]
-    first = first[np.lexsort((hits.data[first], hits.row[first]))]  # by sample, nearest piece first
-    row, piece_of, gap_of, half_of = hits.row[first], label[hits.col[first]], hits.data[first], half[hits.col[first]]
+    first = first[np.lexsort((hit_gap[first], hit_row[first]))]  # by sample, nearest piece first
+    row, piece_of, gap_of, half_of = hit_row[first], label[hit_col[first]], hit_gap[first], half[hit_col[first]]
     inside = gap_of <= half_of
     pair = row[inside] * len(pieces) + piece_of[inside]  # (sample, covering piece), unique
     by_piece = np.argsort(pair % len(pieces), kind="stable")
@@ -254,7 +255,11 @@ def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np
     for a, b in zip(np.r_[0, stop], np.r_[stop, len(pts)]):  # a sliver's dot may fall onto one point
         if np.ptp(on[a:b], axis=0).max() <= 1e-9:
             on[a:b] = pts[a:b]
-    lost = (np.linalg.norm(x - pts[j], axis=1) <= 0.5 * bead[j]) & (np.linalg.norm(x - on[j], axis=1) > 0.5 * bead[j])
+    # (a sample of a point left where it was is not lost: the same distance is not both within and past its bead)
+    lost = np.zeros(len(x), bool)
+    at = np.nonzero(np.any(on != pts, axis=1)[j])[0]
+    lost[at] = ((np.linalg.norm(x[at] - pts[j[at]], axis=1) <= 0.5 * bead[j[at]])
+                & (np.linalg.norm(x[at] - on[j[at]], axis=1) > 0.5 * bead[j[at]]))
     pieces = np.split(on, stop)
     return pieces, fill_slivers(x[lost], pieces, beads, width, (OPEN_GAP - 0.5) * width)
 
@@ -303,9 +308,9 @@ def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], w
     pts, half = dense[:, :3], 0.5 * dense[:, 3]
     tree = cKDTree(pts)
     d, j = tree.query(x, workers=query_threads())
-    near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="coo_matrix")
-    inside = near.data <= half[near.col]
-    beads = np.bincount(np.unique(near.row[inside] * len(pieces) + label[near.col[inside]]) // len(pieces),
+    near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="ndarray")
+    inside = near["v"] <= half[near["j"]]
+    beads = np.bincount(np.unique(near["i"][inside] * len(pieces) + label[near["j"][inside]]) // len(pieces),
                         minlength=len(x))
     return int(np.sum((d > half[j] + (OPEN_GAP - 0.5) * width) | (beads > 1)))
 
@@ -348,7 +353,9 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
         return widths
     x, own = x[ask], own[ask]
     if inner is not None and (~inner).any() and len(x):  # ... and only as far as the layer reaches
-        own = np.minimum(own, cKDTree(x_all[~inner]).query(x, workers=query_threads())[0])
+        # (a boundary sample farther than every radius changes none: the search stops there)
+        own = np.minimum(own, cKDTree(x_all[~inner]).query(x, distance_upper_bound=2.0 * own.max(),
+                                                           workers=query_threads())[0])
     # the nearest bead edge among the nearest pass points (a narrower bead nearer than a wider one)
     k = min(_EDGE_CANDIDATES, len(pts))
     d, j = tree.query(x, k=k, distance_upper_bound=widest + float(half.max()), workers=query_threads())
@@ -379,8 +386,8 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     if not len(owners):
         return widths
     # (a bead claims at most what it asks for, so beads farther apart than twice the largest ask never meet)
-    pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(2.0 * want.max()), output_type="coo_matrix")
-    owner, other, dist = owners[pairs.row], pairs.col, pairs.data
+    pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(2.0 * want.max()), output_type="ndarray")
+    owner, other, dist = owners[pairs["i"]], pairs["j"], pairs["v"]
     far = (label[other] != label[owner]) | (np.abs(key[other] - key[owner])
                                             > SAME_PASS_BEADS * np.maximum(width, 2.0 * half[other]))
     owner, other, dist = owner[far], other[far], dist[far]  # (most pairs lie along one pass)
@@ -403,11 +410,11 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
 _EDGE_CANDIDATES = 8
 
 
-def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Largest of ``values`` per ``index`` in ``range(n)``, at least 0 (``np.maximum.at``, sorted)."""
+def _group_max(index: np.ndarray, values: np.ndarray, n: int, order: np.ndarray) -> np.ndarray:
+    """Largest of ``values`` per ``index`` in ``range(n)``, at least 0 (``np.maximum.at``, sorted), over the
+    entries ``order``: some or all positions, in a stable order of ``index``."""
     out = np.zeros(n)
-    if len(index):
-        order = np.argsort(index, kind="stable")
+    if len(order):
         idx = index[order]
         starts = np.r_[0, np.nonzero(np.diff(idx))[0] + 1]
         out[idx[starts]] = np.maximum(np.maximum.reduceat(values[order], starts), 0.0)
@@ -472,9 +479,10 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     # on the side the layer's tangent plane puts it
     left = np.einsum("ij,ij->i", off, side[j]) >= 0
     lateral = np.linalg.norm(off - along[:, None] * tan[j], axis=1) * np.where(left, 1.0, -1.0)
-    extent = np.stack([_group_max(j[left], lateral[left], n), _group_max(j[~left], -lateral[~left], n)])
+    by_point = np.argsort(j, kind="stable")  # (one sort for the three group maxima)
+    extent = np.stack([_group_max(j, lateral, n, by_point[left[by_point]]), _group_max(j, -lateral, n, by_point[~left[by_point]])])
     owned = np.stack([np.bincount(j[left], minlength=n), np.bincount(j[~left], minlength=n)]).astype(np.float64)
-    reach = _group_max(j, np.where(last[j], along, np.where(first[j], -along, 0.0)), n)  # ahead of an end
+    reach = _group_max(j, np.where(last[j], along, np.where(first[j], -along, 0.0)), n, by_point)  # ahead of an end
     # the farthest of k samples spread evenly over [0, e] lies at e·k/(k+1) on average
     # closing (running max, then min): fills the dips where no sample happened to lie near the
     # strip's edge without spreading a wide stretch into a narrow one; the farthest of k samples
