@@ -276,7 +276,7 @@ class _Owners:
 
     def add(self, fine: list[np.ndarray]) -> None:
         if fine and len(self.x):
-            d, j = cKDTree(np.vstack(fine)).query(self.x, workers=query_threads())
+            d, j = nearest_below(cKDTree(np.vstack(fine)), self.x, self.d)  # (only a nearer point changes an owner)
             better = d < self.d
             self.d[better], self.j[better] = d[better], sum(len(p) for p in self.fine) + j[better]
         self.fine = self.fine + list(fine)
@@ -293,6 +293,26 @@ class _Owners:
         if len(orphan):
             out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=query_threads())
         return out
+
+
+def nearest_below(tree: cKDTree, points: np.ndarray, cap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance and index of the nearest point of ``tree`` to each of ``points`` (``cKDTree.query``) where that
+    distance is below the point's ``cap``; elsewhere the same or ``inf`` and ``tree.n``. The points whose caps are
+    among the lowest ``_CAPPED`` are searched no farther than the highest of those caps (the search of a point
+    far from every point of ``tree`` then stops at once), the others as far as it takes."""
+    d, j = np.full(len(points), np.inf), np.full(len(points), tree.n, np.int64)
+    if not len(points):
+        return d, j
+    bound = np.partition(cap, int(_CAPPED * (len(cap) - 1)))[int(_CAPPED * (len(cap) - 1))]
+    low = cap <= bound
+    for group, upper in ((low, bound * (1.0 + 1e-9)), (~low, np.inf)):  # (a margin: a capped point is found)
+        if group.any():
+            d[group], j[group] = tree.query(points[group], distance_upper_bound=upper, workers=query_threads())
+    return d, j
+
+
+#: Share of the points that :func:`nearest_below` searches no farther than their group's highest cap.
+_CAPPED = 0.9
 
 
 def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> int:

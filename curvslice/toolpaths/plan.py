@@ -16,10 +16,10 @@ from scipy.spatial import cKDTree
 
 from curvslice import orientation as ori
 from curvslice.errors import CurvsliceError
-from curvslice.executors import Executor, InProcess, query_threads
+from curvslice.executors import Executor, InProcess
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.geodesic import boundary_distance, edge_keys
-from curvslice.toolpaths.beads import fill_slivers, layer_beads, surface_samples
+from curvslice.toolpaths.beads import fill_slivers, layer_beads, nearest_below, surface_samples
 from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, MAX_SHIFT,
                                            SUBDIVIDE_EDGE, THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
 from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
@@ -369,7 +369,8 @@ def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, np.n
     closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
     dist = np.abs(q[:, 2])
     for tri_k, tree_k, reach in reversed(earlier):
-        bound = tree_k.query(q, workers=query_threads())[0] - reach.max()
+        # (a layer's nearest centroid farther than the point's thickness and reach brings it no closer)
+        bound = nearest_below(tree_k, q, (dist + reach.max()) * (1.0 + 1e-9))[0] - reach.max()
         todo = np.nonzero(bound < dist)[0]
         if len(todo) == 0:
             continue
