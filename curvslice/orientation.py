@@ -35,7 +35,7 @@ def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | No
     tree = tree if tree is not None else cKDTree(tri.mean(axis=1))
     reach = reach if reach is not None else triangle_reach(tri, tree)
     k = min(candidates, len(tri))
-    centre, idx = tree.query(pts, k=k, workers=query_threads())
+    centre, idx = tree.query(pts, k=k, workers=query_threads(len(pts)))
     centre, idx = centre.reshape(len(pts), k), idx.reshape(len(pts), k)
     rows = np.arange(len(pts))
     first = _closest_on_triangles(tri[idx[:, 0]], pts)

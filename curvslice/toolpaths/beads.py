@@ -99,7 +99,7 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     own = concat_ranges(stop[short] - counts[short], counts[short])
     reach = float(half.max())
     short_tree = cKDTree(pts[own])
-    close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=query_threads())[0]))[0]
+    close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=query_threads(len(samples)))[0]))[0]
     under = short_tree.sparse_distance_matrix(cKDTree(samples[close]), reach, output_type="ndarray")
     near = close[np.unique(under["j"][under["v"] <= half[own][under["i"]]])]
     if len(near) == 0:
@@ -291,7 +291,7 @@ class _Owners:
         out.fine, out.d, out.j = [self.fine[i] for i in indices], self.d.copy(), renumber[self.j]
         orphan = np.nonzero(out.j < 0)[0]
         if len(orphan):
-            out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=query_threads())
+            out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=query_threads(len(orphan)))
         return out
 
 
@@ -307,7 +307,8 @@ def nearest_below(tree: cKDTree, points: np.ndarray, cap: np.ndarray) -> tuple[n
     low = cap <= bound
     for group, upper in ((low, bound * (1.0 + 1e-9)), (~low, np.inf)):  # (a margin: a capped point is found)
         if group.any():
-            d[group], j[group] = tree.query(points[group], distance_upper_bound=upper, workers=query_threads())
+            d[group], j[group] = tree.query(points[group], distance_upper_bound=upper,
+                                             workers=query_threads(int(group.sum())))
     return d, j
 
 
@@ -327,7 +328,7 @@ def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], w
     dense = np.vstack(dense)
     pts, half = dense[:, :3], 0.5 * dense[:, 3]
     tree = cKDTree(pts)
-    d, j = tree.query(x, workers=query_threads())
+    d, j = tree.query(x, workers=query_threads(len(x)))
     near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="ndarray")
     inside = near["v"] <= half[near["j"]]
     beads = np.bincount(np.unique(near["i"][inside] * len(pieces) + label[near["j"][inside]]) // len(pieces),
@@ -367,7 +368,7 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     x_all = x
     own = np.where(inner, np.sqrt(FIT_SAMPLE / np.pi) * width, 0.0) if inner is not None else np.zeros(len(x))
     # a sample deeper than that inside the bead of its nearest pass point is covered whatever the others
-    d1, j1 = tree.query(x, workers=query_threads())
+    d1, j1 = tree.query(x, workers=query_threads(len(x)))
     ask = np.nonzero(d1 - half[j1] > -own)[0]
     if not len(ask):
         return widths
@@ -375,10 +376,10 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     if inner is not None and (~inner).any() and len(x):  # ... and only as far as the layer reaches
         # (a boundary sample farther than every radius changes none: the search stops there)
         own = np.minimum(own, cKDTree(x_all[~inner]).query(x, distance_upper_bound=2.0 * own.max(),
-                                                           workers=query_threads())[0])
+                                                           workers=query_threads(len(x)))[0])
     # the nearest bead edge among the nearest pass points (a narrower bead nearer than a wider one)
     k = min(_EDGE_CANDIDATES, len(pts))
-    d, j = tree.query(x, k=k, distance_upper_bound=widest + float(half.max()), workers=query_threads())
+    d, j = tree.query(x, k=k, distance_upper_bound=widest + float(half.max()), workers=query_threads(len(x)))
     d, j = d.reshape(len(x), k), j.reshape(len(x), k)
     gap = np.where(j < len(pts), d - half[np.minimum(j, len(pts) - 1)], np.inf)
     rows = np.arange(len(x))

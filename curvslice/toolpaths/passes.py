@@ -122,7 +122,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     else:
         widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
         dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(pieces, widths)])
-        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=query_threads())
+        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=query_threads(len(v)))
         open_v = gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
     ring = np.roll(faces, -1, axis=1)
     inside = open_v[faces] & open_v[ring]
