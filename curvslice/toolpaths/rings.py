@@ -45,7 +45,7 @@ class Ring:
     @property
     def cumlen(self) -> np.ndarray:
         closed = np.vstack([self.points, self.points[:1]])
-        return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]
+        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
 
     @property
     def breadth(self) -> float:
