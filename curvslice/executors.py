@@ -142,14 +142,24 @@ class DaskExecutor:
         return self.client.gather(list(futures))
 
 
-def query_threads() -> int:
-    """Threads of one KD-tree query (``cKDTree.query(..., workers=query_threads())``): ``OMP_NUM_THREADS`` when
-    set -- Dask's nannies set it to 1 in their worker processes, which share the cores between them already
-    (Dask's guidance: no more threads than cores) -- else every core (-1, as in-process). Each query's
-    threads are started and joined anew: the bunny's folds of layers 41-62 took 7.25 CPU s on a worker with two
-    threads per query, 6.43 with one (in-process 7.0-7.2, where the second core is free to take them)."""
+def query_threads(points: int) -> int:
+    """Threads of one KD-tree query of ``points`` points (``cKDTree.query(..., workers=query_threads(len(x)))``):
+    ``OMP_NUM_THREADS`` when set -- Dask's nannies set it to 1 in their worker processes, which share the cores
+    between them already (Dask's guidance: no more threads than cores) -- else every core (-1, as in-process),
+    but one for fewer than :data:`THREADED_QUERY` points. Each query's threads are started and joined anew: the
+    bunny's folds of layers 41-62 took 7.25 CPU s on a worker with two threads per query, 6.43 with one
+    (in-process 7.0-7.2, where the second core is free to take them)."""
     value = os.environ.get("OMP_NUM_THREADS", "")
-    return int(value) if value.isdigit() and int(value) > 0 else -1
+    if value.isdigit() and int(value) > 0:
+        return int(value)
+    return -1 if points >= THREADED_QUERY else 1
+
+
+#: Fewest points of a KD query worth threads (:func:`query_threads`): starting and joining two threads cost
+#: 0.2 ms CPU per query, the whole search of 200 points. Of the bunny's 6,461 tool-path queries (1.0 mm), nine in
+#: ten have fewer points (median 123), a tenth of all points; one thread for every query took 2.6 of its 61 CPU s less
+#: (load 2.3-3.2).
+THREADED_QUERY = 4096
 
 
 def _value(value: Any) -> Any:

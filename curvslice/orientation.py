@@ -20,23 +20,48 @@ from curvslice.executors import query_threads
 
 
 def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | None = None,
-                   candidates: int = 12) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   candidates: int = 12, reach: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Closest point on a triangle soup (T,3,3) for each point (Eq. 3.3), its distance and triangle.
 
     Candidates are the ``candidates`` triangles with the nearest centroids (``tree`` over the
-    centroids may be passed in); the exact point-triangle distance decides among them.
+    centroids may be passed in); the exact point-triangle distance decides among them. It is computed
+    for the nearest centroid's triangle and for the candidates that may come nearer than that one: no
+    triangle is nearer than its centroid less its ``reach`` (:func:`triangle_reach`, computed when not
+    given), so the others cannot be the closest and need no test (the same answer, bit for bit: each
+    point-triangle pair is computed on its own).
     """
     pts = np.asarray(points, np.float64).reshape(-1, 3)
     tri = np.asarray(triangles, np.float64).reshape(-1, 3, 3)
     tree = tree if tree is not None else cKDTree(tri.mean(axis=1))
+    reach = reach if reach is not None else triangle_reach(tri, tree)
     k = min(candidates, len(tri))
-    _, idx = tree.query(pts, k=k, workers=query_threads())
-    idx = idx.reshape(len(pts), k)
-    cand = _closest_on_triangles(tri[idx.ravel()], np.repeat(pts, k, axis=0)).reshape(len(pts), k, 3)
-    dist = np.linalg.norm(cand - pts[:, None, :], axis=2)
-    best = np.argmin(dist, axis=1)
+    centre, idx = tree.query(pts, k=k, workers=query_threads(len(pts)))
+    centre, idx = centre.reshape(len(pts), k), idx.reshape(len(pts), k)
     rows = np.arange(len(pts))
-    return cand[rows, best], dist[rows, best], idx[rows, best]
+    first = _closest_on_triangles(tri[idx[:, 0]], pts)
+    dist = np.full((len(pts), k), np.inf)
+    dist[:, 0] = np.linalg.norm(first - pts, axis=1)
+    # (a margin far above rounding: a candidate is skipped only when it is surely farther)
+    row, col = np.nonzero(centre[:, 1:] - reach[idx[:, 1:]] <= dist[:, :1] + _SURELY_FARTHER)
+    col += 1
+    other = _closest_on_triangles(tri[idx[row, col]], pts[row])
+    dist[row, col] = np.linalg.norm(other - pts[row], axis=1)
+    best = np.argmin(dist, axis=1)
+    out = first.copy()
+    won = best[row] == col
+    out[row[won]] = other[won]
+    return out, dist[rows, best], idx[rows, best]
+
+
+#: Distance (mm) by which :func:`closest_points` requires a candidate's lower bound to exceed the best
+#: distance found before skipping it: far above the rounding of either (1e-13 mm at a metre).
+_SURELY_FARTHER = 1e-9
+
+
+def triangle_reach(triangles: np.ndarray, tree: cKDTree) -> np.ndarray:
+    """Each triangle's farthest corner from its point in ``tree`` (its centroid): no point of the
+    triangle lies farther from it (:func:`closest_points`)."""
+    return np.linalg.norm(np.asarray(triangles, np.float64).reshape(-1, 3, 3) - tree.data[:, None, :], axis=2).max(axis=1)
 
 
 def surface_normals(mesh: trimesh.Trimesh, points: np.ndarray, faces: np.ndarray) -> np.ndarray:

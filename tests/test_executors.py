@@ -178,11 +178,12 @@ def test_local_cluster_workers_run_without_profiler_and_dask_malloc_setting():
 def test_kd_queries_take_one_thread_per_worker_and_every_core_in_process(monkeypatch):
     """A worker process (one task thread, ``OMP_NUM_THREADS=1`` from its nanny) queries KD trees on one thread,
     not on every core beside the other workers; in-process without the variable, on every core."""
-    from curvslice.executors import query_threads
+    from curvslice.executors import THREADED_QUERY, query_threads
 
     with open_executor(workers=1) as ex:
-        assert list(ex.client.run(query_threads).values()) == [1]
+        assert list(ex.client.run(query_threads, THREADED_QUERY).values()) == [1]
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
-    assert query_threads() == -1
+    assert query_threads(THREADED_QUERY) == -1
+    assert query_threads(THREADED_QUERY - 1) == 1  # a small query is not worth starting threads
     monkeypatch.setenv("OMP_NUM_THREADS", "3")
-    assert query_threads() == 3
+    assert query_threads(THREADED_QUERY) == 3

@@ -11,7 +11,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from curvslice.executors import query_threads
-from curvslice.orientation import closest_points
+from curvslice.orientation import closest_points, triangle_reach
 from curvslice.toolpaths.constants import (AHEAD_ANGLE, BEAD_RANGE, END_DEPTH, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
                                            OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS, SEAM_CHORD)
 from curvslice.toolpaths.passes import gap_passes
@@ -99,19 +99,20 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     own = concat_ranges(stop[short] - counts[short], counts[short])
     reach = float(half.max())
     short_tree = cKDTree(pts[own])
-    close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=query_threads())[0]))[0]
-    under = short_tree.sparse_distance_matrix(cKDTree(samples[close]), reach, output_type="coo_matrix")
-    near = close[np.unique(under.col[under.data <= half[own][under.row]])]
+    close = np.nonzero(np.isfinite(short_tree.query(samples, distance_upper_bound=reach, workers=query_threads(len(samples)))[0]))[0]
+    under = short_tree.sparse_distance_matrix(cKDTree(samples[close]), reach, output_type="ndarray")
+    near = close[np.unique(under["j"][under["v"] <= half[own][under["i"]]])]
     if len(near) == 0:
         return keep
     widest = BEAD_RANGE[1] * width
-    hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), max(reach, widest), output_type="coo_matrix")
+    hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), max(reach, widest), output_type="ndarray")
+    hit_row, hit_col, hit_gap = hits["i"], hits["j"], hits["v"]
     # the nearest point of every piece within the widest bead of each sample
-    code = hits.row * len(pieces) + label[hits.col]
-    first = np.lexsort((hits.data, code))
+    code = hit_row * len(pieces) + label[hit_col]
+    first = np.lexsort((hit_gap, code))
     first = first[np.r_[True, code[first][1:] != code[first][:-1]]]
-    first = first[np.lexsort((hits.data[first], hits.row[first]))]  # by sample, nearest piece first
-    row, piece_of, gap_of, half_of = hits.row[first], label[hits.col[first]], hits.data[first], half[hits.col[first]]
+    first = first[np.lexsort((hit_gap[first], hit_row[first]))]  # by sample, nearest piece first
+    row, piece_of, gap_of, half_of = hit_row[first], label[hit_col[first]], hit_gap[first], half[hit_col[first]]
     inside = gap_of <= half_of
     pair = row[inside] * len(pieces) + piece_of[inside]  # (sample, covering piece), unique
     by_piece = np.argsort(pair % len(pieces), kind="stable")
@@ -185,27 +186,41 @@ def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray, 
 
 class _Projector:
     """Closest points on one layer (Eq. 3.3) for :func:`_onto_layer`, with what every call of a layer's
-    fits shares: the centroid KD-tree, the boundary edges, and the answers for points already asked
-    (a refit keeps most passes' points exactly as they were)."""
+    fits shares: the centroid KD-tree and the triangles' reaches, the boundary edges, and the answers for
+    points already asked (a refit keeps most passes' points exactly as they were), by their bytes, sorted."""
 
     def __init__(self, surface: trimesh.Trimesh):
         self.tri = surface.triangles
         self.tree = cKDTree(self.tri.mean(axis=1))
+        self.reach = triangle_reach(self.tri, self.tree)
         self.edge = np.zeros((len(self.tri), 3), bool)  # edge (c, c+1) of each face on the boundary
         border = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
         self.edge[border // 3, border % 3] = True
-        self.known: dict[bytes, tuple[np.ndarray, float, int]] = {}
+        self.keys = np.zeros(0, _ROW)
+        self.on, self.moved, self.face = np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64)
 
     def __call__(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        keys = [row.tobytes() for row in np.ascontiguousarray(pts)]
-        ask = np.array([k not in self.known for k in keys], bool)
-        if ask.any():
-            on, moved, face = closest_points(pts[ask], self.tri, self.tree)
-            for k, a, b, c in zip(np.asarray(keys, object)[ask], on, moved, face):
-                self.known[k] = (a, b, c)
-        got = [self.known[k] for k in keys]
-        return (np.array([g[0] for g in got]).reshape(-1, 3), np.array([g[1] for g in got], float),
-                np.array([g[2] for g in got], np.int64))
+        pts = np.ascontiguousarray(pts, np.float64).reshape(-1, 3)
+        keys = pts.view(_ROW).ravel()
+        ask = ~self._known(keys)
+        new, first = np.unique(keys[ask], return_index=True)
+        if len(new):
+            on, moved, face = closest_points(pts[ask][first], self.tri, self.tree, reach=self.reach)
+            order = np.argsort(np.concatenate([self.keys, new]))
+            self.keys = np.concatenate([self.keys, new])[order]
+            self.on, self.moved, self.face = (np.concatenate([self.on, on])[order], np.concatenate([self.moved, moved])[order],
+                                              np.concatenate([self.face, face])[order])
+        at = np.searchsorted(self.keys, keys)
+        return self.on[at], self.moved[at], self.face[at]
+
+    def _known(self, keys: np.ndarray) -> np.ndarray:
+        """Whether each of ``keys`` (points as :data:`_ROW`) was asked before."""
+        at = np.minimum(np.searchsorted(self.keys, keys), max(len(self.keys) - 1, 0))
+        return self.keys[at] == keys if len(self.keys) else np.zeros(len(keys), bool)
+
+
+#: A point's three coordinates as one opaque value (:class:`_Projector`'s answers are looked up by their bytes).
+_ROW = np.dtype((np.void, 24))
 
 
 def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np.ndarray],
@@ -240,7 +255,11 @@ def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np
     for a, b in zip(np.r_[0, stop], np.r_[stop, len(pts)]):  # a sliver's dot may fall onto one point
         if np.ptp(on[a:b], axis=0).max() <= 1e-9:
             on[a:b] = pts[a:b]
-    lost = (np.linalg.norm(x - pts[j], axis=1) <= 0.5 * bead[j]) & (np.linalg.norm(x - on[j], axis=1) > 0.5 * bead[j])
+    # (a sample of a point left where it was is not lost: the same distance is not both within and past its bead)
+    lost = np.zeros(len(x), bool)
+    at = np.nonzero(np.any(on != pts, axis=1)[j])[0]
+    lost[at] = ((np.linalg.norm(x[at] - pts[j[at]], axis=1) <= 0.5 * bead[j[at]])
+                & (np.linalg.norm(x[at] - on[j[at]], axis=1) > 0.5 * bead[j[at]]))
     pieces = np.split(on, stop)
     return pieces, fill_slivers(x[lost], pieces, beads, width, (OPEN_GAP - 0.5) * width)
 
@@ -257,7 +276,7 @@ class _Owners:
 
     def add(self, fine: list[np.ndarray]) -> None:
         if fine and len(self.x):
-            d, j = cKDTree(np.vstack(fine)).query(self.x, workers=query_threads())
+            d, j = nearest_below(cKDTree(np.vstack(fine)), self.x, self.d)  # (only a nearer point changes an owner)
             better = d < self.d
             self.d[better], self.j[better] = d[better], sum(len(p) for p in self.fine) + j[better]
         self.fine = self.fine + list(fine)
@@ -272,8 +291,29 @@ class _Owners:
         out.fine, out.d, out.j = [self.fine[i] for i in indices], self.d.copy(), renumber[self.j]
         orphan = np.nonzero(out.j < 0)[0]
         if len(orphan):
-            out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=query_threads())
+            out.d[orphan], out.j[orphan] = cKDTree(np.vstack(out.fine)).query(self.x[orphan], workers=query_threads(len(orphan)))
         return out
+
+
+def nearest_below(tree: cKDTree, points: np.ndarray, cap: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Distance and index of the nearest point of ``tree`` to each of ``points`` (``cKDTree.query``) where that
+    distance is below the point's ``cap``; elsewhere the same or ``inf`` and ``tree.n``. The points whose caps are
+    among the lowest ``_CAPPED`` are searched no farther than the highest of those caps (the search of a point
+    far from every point of ``tree`` then stops at once), the others as far as it takes."""
+    d, j = np.full(len(points), np.inf), np.full(len(points), tree.n, np.int64)
+    if not len(points):
+        return d, j
+    bound = np.partition(cap, int(_CAPPED * (len(cap) - 1)))[int(_CAPPED * (len(cap) - 1))]
+    low = cap <= bound
+    for group, upper in ((low, bound * (1.0 + 1e-9)), (~low, np.inf)):  # (a margin: a capped point is found)
+        if group.any():
+            d[group], j[group] = tree.query(points[group], distance_upper_bound=upper,
+                                             workers=query_threads(int(group.sum())))
+    return d, j
+
+
+#: Share of the points that :func:`nearest_below` searches no farther than their group's highest cap.
+_CAPPED = 0.9
 
 
 def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], width: float) -> int:
@@ -288,10 +328,10 @@ def _faults(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarray], w
     dense = np.vstack(dense)
     pts, half = dense[:, :3], 0.5 * dense[:, 3]
     tree = cKDTree(pts)
-    d, j = tree.query(x, workers=query_threads())
-    near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="coo_matrix")
-    inside = near.data <= half[near.col]
-    beads = np.bincount(np.unique(near.row[inside] * len(pieces) + label[near.col[inside]]) // len(pieces),
+    d, j = tree.query(x, workers=query_threads(len(x)))
+    near = cKDTree(x).sparse_distance_matrix(tree, float(half.max()), output_type="ndarray")
+    inside = near["v"] <= half[near["j"]]
+    beads = np.bincount(np.unique(near["i"][inside] * len(pieces) + label[near["j"][inside]]) // len(pieces),
                         minlength=len(x))
     return int(np.sum((d > half[j] + (OPEN_GAP - 0.5) * width) | (beads > 1)))
 
@@ -328,16 +368,18 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     x_all = x
     own = np.where(inner, np.sqrt(FIT_SAMPLE / np.pi) * width, 0.0) if inner is not None else np.zeros(len(x))
     # a sample deeper than that inside the bead of its nearest pass point is covered whatever the others
-    d1, j1 = tree.query(x, workers=query_threads())
+    d1, j1 = tree.query(x, workers=query_threads(len(x)))
     ask = np.nonzero(d1 - half[j1] > -own)[0]
     if not len(ask):
         return widths
     x, own = x[ask], own[ask]
     if inner is not None and (~inner).any() and len(x):  # ... and only as far as the layer reaches
-        own = np.minimum(own, cKDTree(x_all[~inner]).query(x, workers=query_threads())[0])
+        # (a boundary sample farther than every radius changes none: the search stops there)
+        own = np.minimum(own, cKDTree(x_all[~inner]).query(x, distance_upper_bound=2.0 * own.max(),
+                                                           workers=query_threads(len(x)))[0])
     # the nearest bead edge among the nearest pass points (a narrower bead nearer than a wider one)
     k = min(_EDGE_CANDIDATES, len(pts))
-    d, j = tree.query(x, k=k, distance_upper_bound=widest + float(half.max()), workers=query_threads())
+    d, j = tree.query(x, k=k, distance_upper_bound=widest + float(half.max()), workers=query_threads(len(x)))
     d, j = d.reshape(len(x), k), j.reshape(len(x), k)
     gap = np.where(j < len(pts), d - half[np.minimum(j, len(pts) - 1)], np.inf)
     rows = np.arange(len(x))
@@ -365,8 +407,8 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     if not len(owners):
         return widths
     # (a bead claims at most what it asks for, so beads farther apart than twice the largest ask never meet)
-    pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(2.0 * want.max()), output_type="coo_matrix")
-    owner, other, dist = owners[pairs.row], pairs.col, pairs.data
+    pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(2.0 * want.max()), output_type="ndarray")
+    owner, other, dist = owners[pairs["i"]], pairs["j"], pairs["v"]
     far = (label[other] != label[owner]) | (np.abs(key[other] - key[owner])
                                             > SAME_PASS_BEADS * np.maximum(width, 2.0 * half[other]))
     owner, other, dist = owner[far], other[far], dist[far]  # (most pairs lie along one pass)
@@ -389,11 +431,11 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
 _EDGE_CANDIDATES = 8
 
 
-def _group_max(index: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
-    """Largest of ``values`` per ``index`` in ``range(n)``, at least 0 (``np.maximum.at``, sorted)."""
+def _group_max(index: np.ndarray, values: np.ndarray, n: int, order: np.ndarray) -> np.ndarray:
+    """Largest of ``values`` per ``index`` in ``range(n)``, at least 0 (``np.maximum.at``, sorted), over the
+    entries ``order``: some or all positions, in a stable order of ``index``."""
     out = np.zeros(n)
-    if len(index):
-        order = np.argsort(index, kind="stable")
+    if len(order):
         idx = index[order]
         starts = np.r_[0, np.nonzero(np.diff(idx))[0] + 1]
         out[idx[starts]] = np.maximum(np.maximum.reduceat(values[order], starts), 0.0)
@@ -458,9 +500,10 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     # on the side the layer's tangent plane puts it
     left = np.einsum("ij,ij->i", off, side[j]) >= 0
     lateral = np.linalg.norm(off - along[:, None] * tan[j], axis=1) * np.where(left, 1.0, -1.0)
-    extent = np.stack([_group_max(j[left], lateral[left], n), _group_max(j[~left], -lateral[~left], n)])
+    by_point = np.argsort(j, kind="stable")  # (one sort for the three group maxima)
+    extent = np.stack([_group_max(j, lateral, n, by_point[left[by_point]]), _group_max(j, -lateral, n, by_point[~left[by_point]])])
     owned = np.stack([np.bincount(j[left], minlength=n), np.bincount(j[~left], minlength=n)]).astype(np.float64)
-    reach = _group_max(j, np.where(last[j], along, np.where(first[j], -along, 0.0)), n)  # ahead of an end
+    reach = _group_max(j, np.where(last[j], along, np.where(first[j], -along, 0.0)), n, by_point)  # ahead of an end
     # the farthest of k samples spread evenly over [0, e] lies at e·k/(k+1) on average
     # closing (running max, then min): fills the dips where no sample happened to lie near the
     # strip's edge without spreading a wide stretch into a narrow one; the farthest of k samples

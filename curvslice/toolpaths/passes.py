@@ -122,7 +122,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     else:
         widths = widths if widths is not None else [np.full(len(p), width) for p in pieces]
         dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(pieces, widths)])
-        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=query_threads())
+        gap, nearest = cKDTree(dense[:, :3]).query(v, workers=query_threads(len(v)))
         open_v = gap > 0.5 * dense[nearest, 3] + (OPEN_GAP - 0.5) * width
     ring = np.roll(faces, -1, axis=1)
     inside = open_v[faces] & open_v[ring]
@@ -217,11 +217,11 @@ def uncross(piece: np.ndarray, width: float, rounds: int = UNCROSS_ROUNDS) -> np
         mid = 0.5 * (a + b)
         tree = cKDTree(mid)
         typical = float(np.percentile(length, CROSS_PERCENTILE)) + 1e-9
-        pairs = [tree.query_pairs(typical, output_type="ndarray")]
-        for k in np.nonzero(length > typical)[0]:  # the few long links, against everything near
-            near = np.asarray(tree.query_ball_point(mid[k], 0.5 * (length[k] + length.max()) + 1e-9), np.int64)
-            pairs.append(np.c_[np.full(len(near), k), near])
-        pairs = np.vstack(pairs)
+        long = np.nonzero(length > typical)[0]  # the few long links, against everything near
+        near = tree.query_ball_point(mid[long], 0.5 * (length[long] + length.max()) + 1e-9)
+        pairs = np.vstack([tree.query_pairs(typical, output_type="ndarray"),
+                           np.column_stack([np.repeat(long, [len(n) for n in near]),
+                                            np.fromiter((k for n in near for k in n), np.int64)])])
         i, j = pairs.min(axis=1), pairs.max(axis=1)
         keep = j > i + 1
         i, j = i[keep], j[keep]

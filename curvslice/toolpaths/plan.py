@@ -16,10 +16,10 @@ from scipy.spatial import cKDTree
 
 from curvslice import orientation as ori
 from curvslice.errors import CurvsliceError
-from curvslice.executors import Executor, InProcess, query_threads
+from curvslice.executors import Executor, InProcess
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.geodesic import boundary_distance, edge_keys
-from curvslice.toolpaths.beads import fill_slivers, layer_beads, surface_samples
+from curvslice.toolpaths.beads import fill_slivers, layer_beads, nearest_below, surface_samples
 from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, MAX_SHIFT,
                                            SUBDIVIDE_EDGE, THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
 from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
@@ -357,11 +357,11 @@ class Toolpaths:
     seconds: dict[str, float]
 
 
-def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, float]],
+def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, np.ndarray]],
                candidates: int = THICKNESS_CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
     """Closest point under each point on the platform top ``z = 0`` or the ``earlier`` layers'
     triangles (Eq. 3.3; ``candidates`` nearest triangle centroids tried on each; each layer comes
-    with its centroid tree and largest centroid-to-corner reach) and the distance
+    with its centroid tree and its triangles' centroid-to-corner reaches) and the distance
     to it: the local layer thickness (unclamped). Layers are searched newest first, and a layer
     only for the points it may bring closer: no triangle is nearer than its nearest centroid
     less the layer's largest centroid-to-corner reach."""
@@ -369,26 +369,29 @@ def _thickness(points: np.ndarray, earlier: list[tuple[np.ndarray, cKDTree, floa
     closest = np.column_stack([q[:, 0], q[:, 1], np.zeros(len(q))])
     dist = np.abs(q[:, 2])
     for tri_k, tree_k, reach in reversed(earlier):
-        bound = tree_k.query(q, workers=query_threads())[0] - reach
+        # (a layer's nearest centroid farther than the point's thickness and reach brings it no closer)
+        bound = nearest_below(tree_k, q, (dist + reach.max()) * (1.0 + 1e-9))[0] - reach.max()
         todo = np.nonzero(bound < dist)[0]
         if len(todo) == 0:
             continue
-        c_k, d_k, _ = ori.closest_points(q[todo], tri_k, tree_k, candidates)
+        c_k, d_k, _ = ori.closest_points(q[todo], tri_k, tree_k, candidates, reach)
         better = d_k < dist[todo]
         closest[todo[better]], dist[todo[better]] = c_k[better], d_k[better]
     return closest, dist
 
 
-def layer_support(surface: trimesh.Trimesh) -> tuple[np.ndarray, cKDTree | None, float]:
+def layer_support(surface: trimesh.Trimesh) -> tuple[np.ndarray, cKDTree | None, np.ndarray]:
     """A cleaned layer as later layers stand on it (Eq. 3.3, :func:`_thickness`): its triangles, their
-    centroid tree and the largest centroid-to-corner reach (which bounds every later search)."""
+    centroid tree and each one's centroid-to-corner reach (:func:`~curvslice.orientation.triangle_reach`:
+    they bound every later search)."""
     tri = surface.triangles
     if not len(tri):
-        return tri, None, 0.0
-    return tri, cKDTree(tri.mean(axis=1)), float(np.linalg.norm(tri - tri.mean(axis=1, keepdims=True), axis=2).max())
+        return tri, None, np.zeros(0)
+    tree = cKDTree(tri.mean(axis=1))
+    return tri, tree, ori.triangle_reach(tri, tree)
 
 
-def _earlier(supports: list[tuple[np.ndarray, cKDTree | None, float]], k: int, window: int) -> list:
+def _earlier(supports: list[tuple[np.ndarray, cKDTree | None, np.ndarray]], k: int, window: int) -> list:
     """The ``window`` last non-empty layers before layer ``k`` (0-based)."""
     return [s for s in supports[:k] if len(s[0])][-window:]
 
@@ -543,7 +546,7 @@ def _orient_layer(k: int, folded: _Folded, prepared: _Prepared, surfaces: list[t
     widths = _sliver_widths(prepared.rings, paths, w)
     samples = [_piece_samples(paths, widths, at, settings) for at in folded.order]
     samples = [s for s in samples if len(s) >= 2]
-    tri, own_tree, _ = supports[k]
+    tri, own_tree, own_reach = supports[k]
     earlier = _earlier(supports, k, settings.window)
     out: dict[str, np.ndarray] = {}
     row = {"layer": k + 1, "pieces": len(samples), "jumps": max(len(samples) - 1, 0),
@@ -557,7 +560,7 @@ def _orient_layer(k: int, folded: _Folded, prepared: _Prepared, surfaces: list[t
         q, bead = q[:, :3], q[:, 3]
         pid = piece_labels(samples)
         fitted = q
-        q, _, own_face = ori.closest_points(q, tri, own_tree)  # chords (links) back onto the layer
+        q, _, own_face = ori.closest_points(q, tri, own_tree, reach=own_reach)  # chords (links) back onto the layer
         surface_normal = ori.surface_normals(surface, q, own_face)
         bead = _pulled_beads(fitted, q, surface_normal, bead, pid, w)
         closest, dist = _thickness(q, earlier)
@@ -565,7 +568,7 @@ def _orient_layer(k: int, folded: _Folded, prepared: _Prepared, surfaces: list[t
         t = ori.limit_tilt(t, surface_normal, settings.max_tilt)
         t = ori.low_pass(t, pid, settings.max_angle)
         pos, nrm, parent, frac = ori.slerp_subdivide(q, t, pid, settings.max_angle)
-        pos, _, pos_face = ori.closest_points(pos, tri, own_tree)  # crest subdivisions onto the layer
+        pos, _, pos_face = ori.closest_points(pos, tri, own_tree, reach=own_reach)  # crest subdivisions onto the layer
         # the low-pass may have tilted a sample past the limit: never into the printed side
         nrm = ori.limit_tilt(nrm, ori.surface_normals(surface, pos, pos_face), HARD_TILT)
         nxt = np.minimum(parent + 1, len(q) - 1)

@@ -21,21 +21,21 @@ def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0, turn_
     per radian the path turns (below the kept corners), so bends keep their samples."""
     p = np.asarray(polyline, np.float64)
     seg = np.linalg.norm(np.diff(p[:, :3], axis=0), axis=1)
-    p = p[np.r_[True, seg > 1e-9]]
+    p = p[np.concatenate([[True], seg > 1e-9])]  # (np.concatenate: np.r_ costs more than the rest at a few points)
     if len(p) < 2:
         return p[:1].copy()
     d = np.diff(p[:, :3], axis=0)
     u = d / np.linalg.norm(d, axis=1, keepdims=True)
     turn = np.arccos(np.clip(np.einsum("ij,ij->i", u[:-1], u[1:]), -1, 1))
-    keep = np.r_[0, np.nonzero(turn > CORNER_ANGLE)[0] + 1, len(p) - 1]
-    bend = np.r_[0.0, np.where(turn > CORNER_ANGLE, 0.0, turn), 0.0]
-    cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.c_[d, value_weight * np.diff(p[:, 3:], axis=0)], axis=1)
-                               + turn_weight * 0.5 * (bend[:-1] + bend[1:]))]
+    keep = np.concatenate([[0], np.nonzero(turn > CORNER_ANGLE)[0] + 1, [len(p) - 1]])
+    bend = np.concatenate([[0.0], np.where(turn > CORNER_ANGLE, 0.0, turn), [0.0]])
+    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.concatenate([d, value_weight * np.diff(p[:, 3:], axis=0)], axis=1), axis=1)
+                                           + turn_weight * 0.5 * (bend[:-1] + bend[1:]))])
     # every run between kept corners in n equal steps (the corners themselves are knots of cum)
     start, span = cum[keep[:-1]], cum[keep[1:]] - cum[keep[:-1]]
     n = np.maximum(np.ceil(span / step - 1e-9), 1).astype(np.int64)
     run = run_labels(n)
-    s = np.r_[start[run] + span[run] * run_offsets(n) / n[run], cum[-1]]
+    s = np.concatenate([start[run] + span[run] * run_offsets(n) / n[run], cum[-1:]])
     return np.column_stack([np.interp(s, cum, p[:, i]) for i in range(p.shape[1])])
 
 

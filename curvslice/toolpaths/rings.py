@@ -45,7 +45,7 @@ class Ring:
     @property
     def cumlen(self) -> np.ndarray:
         closed = np.vstack([self.points, self.points[:1]])
-        return np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))]
+        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
 
     @property
     def breadth(self) -> float:
@@ -215,7 +215,7 @@ def contour_gap(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, width
     for r in rings:
         by_level.setdefault(r.level, []).append(resample(np.vstack([r.points, r.points[:1]]), DENSE_STEP * width))
     ordered = [np.vstack(by_level[k]) for k in sorted(by_level)]
-    gaps = [cKDTree(a).query(b, workers=query_threads())[0] for a, b in zip(ordered[:-1], ordered[1:])]
+    gaps = [cKDTree(a).query(b, workers=query_threads(len(b)))[0] for a, b in zip(ordered[:-1], ordered[1:])]
     return float(np.median(np.concatenate(gaps))) / width if gaps else 1.0
 
 
