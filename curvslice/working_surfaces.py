@@ -14,9 +14,10 @@ For every layer l (print order) the surface S_l is built in three steps:
    band: the grid edges whose end values bracket the isovalue, except that a jump between grown
    voxels (G = a → b ≥ a + 2, common in governed growth) carries only the layers owning its ends —
    no material of layers a+1 … b−1 lies there, and linear isosurfaces would stack b − a − 1 sheets
-   1/(b − a) voxel apart. Hermite normals by central finite differences of G; one vertex per
-   sign-changing cell from the QEF (truncated pseudo-inverse around the mass point, the vertex kept
-   in the bounding box of its cell's Hermite points); one quad per crossing edge, split along its
+   1/(b − a) voxel apart. An edge leaving H̄ carries a layer's crossing only beside that layer's own
+   voxels (:func:`_beside_own`: its surface reaches ∂H only where its material does). Hermite normals
+   by central finite differences of G; one vertex per sign-changing cell from the QEF (truncated
+   pseudo-inverse around the mass point, the vertex kept in the bounding box of its cell's Hermite points); one quad per crossing edge, split along its
    shorter diagonal and oriented along +∇G (towards later layers).
 3. **Trimming by H** (:mod:`curvslice.trimming`): vertices are classified by a signed distance to ∂H (exact
    distance to the closest triangle, sign by the winding number of a +z ray, right also where ∂H crosses

@@ -548,9 +548,8 @@ def trim_seams(pieces: list[np.ndarray], widths: list[np.ndarray], width: float)
         total, gap = cum[-1], p[0] - p[-1]
         # each end's heading over half a width of its walk (its last segment alone may be a fit's hook)
         reach = min(0.5 * width, 0.5 * total)
-        into = [p[-1] - np.array([np.interp(total - reach, cum, p[:, i]) for i in range(3)]),
-                np.array([np.interp(reach, cum, p[:, i]) for i in range(3)]) - p[0]]
-        head_on = np.dot(gap, into[0]) > 0 and np.dot(gap, into[1]) > 0
+        behind = np.stack([np.interp([reach, total - reach], cum, p[:, i]) for i in range(3)], axis=-1)
+        head_on = np.dot(gap, p[-1] - behind[1]) > 0 and np.dot(gap, behind[0] - p[0]) > 0
         if not head_on or total <= 2.0 * max(float(b.max()), width) + np.linalg.norm(gap):
             continue
         trims = np.linspace(0.0, 0.25 * (b[0] + b[-1]), 51)
