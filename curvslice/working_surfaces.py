@@ -17,8 +17,9 @@ For every layer l (print order) the surface S_l is built in three steps:
    1/(b − a) voxel apart. An edge leaving H̄ carries a layer's crossing only beside that layer's own
    voxels (:func:`_beside_own`: its surface reaches ∂H only where its material does). Hermite normals
    by central finite differences of G; one vertex per sign-changing cell from the QEF (truncated
-   pseudo-inverse around the mass point, the vertex kept in the bounding box of its cell's Hermite points); one quad per crossing edge, split along its
-   shorter diagonal and oriented along +∇G (towards later layers).
+   pseudo-inverse around the mass point, the vertex kept in the bounding box of its cell's Hermite
+   points); one quad per crossing edge, split along its shorter diagonal and oriented along +∇G
+   (towards later layers).
 3. **Trimming by H** (:mod:`curvslice.trimming`): vertices are classified by a signed distance to ∂H (exact
    distance to the closest triangle, sign by the winding number of a +z ray, right also where ∂H crosses
    itself; voxels untouched by ∂H decide in bulk), triangles are clipped along the zero set, and every new boundary vertex is placed on ∂H by
