@@ -336,7 +336,7 @@ def run_toolpaths(ctx: Context) -> ToolpathsResult:
     report = {
         "path_width_mm": settings.path_width, "samples": len(tp.positions), "pieces": sum(r["pieces"] for r in rows),
         "jumps": sum(r["jumps"] for r in rows), "gap_passes": sum(r["gap_passes"] for r in rows),
-        "thin_passes": sum(r["thin_passes"] for r in rows),
+        "thin_passes": sum(r["thin_passes"] for r in rows), "off_layer_links": sum(r.get("off_layer_links", 0) for r in rows),
         "travel_mm": round(sum(r["travel_mm"] for r in rows), 3), "length_mm": round(sum(r["length_mm"] for r in rows), 3),
         "filament_mm": round(float(tp.extrusion.sum()), 3),
         "coverage_min": round(min((c for c, _ in cover), default=0.0), 4),

@@ -102,6 +102,34 @@ def test_verify_fails_on_a_tampered_field(tmp_path):
     assert r.returncode == 1 and "FAIL" in r.stdout
 
 
+def test_a_thin_walled_box_is_printed_on_its_walls_and_a_bead_across_it_fails_verify(tmp_path):
+    """An open-top box with 1.5 mm walls at 1 mm voxels: where a layer's wall is a band too narrow for
+    two beads, one loop round the box prints it (the centre line of either contour ring alone paired its
+    sides across the box: on layer 5 a bead ran 15 mm through the inside, 2.5 mm from the floor). Every
+    verify check passes, the beads-inside-H one with them; the same tool-paths with one wall's pass moved
+    onto the box's middle line fail it."""
+    import manifold3d as mf
+
+    def box(extents, centre):
+        return mf.Manifold.cube(extents, center=True).translate(centre)
+
+    solid = (box([24, 18, 14], [0, 0, 7]) - box([21, 15, 14], [0, 0, 8.5])).to_mesh()
+    path = tmp_path / "box.stl"
+    trimesh.Trimesh(np.asarray(solid.vert_properties)[:, :3], np.asarray(solid.tri_verts)).export(path)
+    out = tmp_path / "box"
+    assert main(["slice", str(path), "--voxel", "1", "--stages", "toolpaths", "--out", str(out), "--quiet"]) == 0
+    line = next(x for x in _run_cli("verify", str(out), cwd=tmp_path).stdout.splitlines() if "printed segments inside H" in x)
+    assert "PASS" in line and " 0 beads" in line, line
+    z = dict(np.load(out / "toolpaths.npz"))
+    wall = (z["layer"] == z["layer"].max() // 2) & (np.abs(z["positions"][:, 1]) > 7.4)
+    assert wall.sum() > 5  # a layer's samples on the two long walls
+    z["positions"][wall, 1] = 0.0  # moved onto the box's middle line, over its empty inside
+    np.savez(out / "toolpaths.npz", **z)
+    r = _run_cli("verify", str(out), cwd=tmp_path)
+    line = next(x for x in r.stdout.splitlines() if "printed segments inside H" in x)
+    assert r.returncode == 1 and "FAIL" in line and " 0 beads" not in line, r.stdout
+
+
 def test_small_holes_are_filled_and_inverted_meshes_flipped():
     s = trimesh.creation.icosphere(subdivisions=3, radius=10)
     holed = trimesh.Trimesh(s.vertices, s.faces[1:])

@@ -158,7 +158,8 @@ def fit_beads(surface: trimesh.Trimesh, pieces: list[np.ndarray], width: float,
     ``e_l + e_r`` and a shift ``(e_l - e_r)/2`` sideways, so the bead lies over its strip: the beads
     tile the layer instead of overlapping by the spacing error. Beads stay within
     ``BEAD_RANGE`` widths and never narrower than ``min_bead`` (the local layer thickness: a bead
-    is at least as wide as it is high). A pass end also owns what lies ahead of it and is
+    is at least as wide as it is high) nor, on layers thicker than 0.8 w, wider than twice that
+    thickness (the widest strip :func:`~curvslice.toolpaths.rings.thin_rise` leaves to one pass). A pass end also owns what lies ahead of it and is
     lengthened until its round end reaches that far. Where the floor makes a bead wider than its
     strip and one side of the strip is the layer's edge, the excess goes over that edge instead of
     over the neighbour. Returns the fitted pieces and their per-vertex bead widths (mm).
@@ -514,9 +515,14 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
         [_window(e * (1 + 1 / np.maximum(_window(c, lo, hi, FIT_HALF, "sum"), 1)), lo, hi, FIT_HALF, "mean")
          for e, c in zip(closed, owned)], extent)]) + FIT_MARGIN * width
     floor = np.full(n, BEAD_RANGE[0] * width)
+    widest = np.full(n, BEAD_RANGE[1] * width)
     if min_bead is not None:
-        floor = np.clip(min_bead(pts), floor, BEAD_RANGE[1] * width)
-    bead = np.clip(extent.sum(axis=0), floor, BEAD_RANGE[1] * width)
+        thick = min_bead(pts)
+        floor = np.clip(thick, floor, widest)
+        # a pass down a strip too narrow for two beads as high as the layer is thick spans up to twice
+        # that height (thin_rise's rule): on layers thicker than the default 0.8 w, wider than BEAD_RANGE
+        widest = np.maximum(widest, 2.0 * thick)
+    bead = np.clip(extent.sum(axis=0), floor, widest)
     # a bead wider than its strip (the floor) spills over the layer's edge where it has one
     spill = np.stack([_window(np.bincount(j[s & edge], minlength=n).astype(np.float64), lo, hi, FIT_HALF, "max") > 0
                       for s in (left, ~left)])

@@ -1,5 +1,6 @@
 """Passes that are not contours: ridge passes of thin walls and gap passes through what the
-spirals leave open (thesis §3.7, the medial-axis gaps), and the removal of self-crossings."""
+spirals leave open (thesis §3.7, the medial-axis gaps), the removal of self-crossings, and passes cut
+where a link leaves the layer."""
 
 from __future__ import annotations
 
@@ -11,7 +12,7 @@ from scipy.spatial import cKDTree
 from curvslice.executors import query_threads
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (BEAD_MIN, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
-                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, OPEN_GAP, RIDGE_FLOOR,
+                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, OFF_LAYER, OPEN_GAP, RIDGE_FLOOR,
                                            RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
 from curvslice.toolpaths.resampling import resample
 
@@ -194,6 +195,32 @@ def join_touching(passes: list[np.ndarray], width: float) -> list[np.ndarray]:
             end = mate[out]
         joined.append(np.vstack(chain))
     return joined
+
+
+def split_off_layer(passes: list[np.ndarray], surface: cKDTree, width: float) -> list[np.ndarray]:
+    """``passes`` cut in two wherever a segment leaves the layer: a point at a quarter, half or three
+    quarters of it lies more than ``OFF_LAYER`` widths from every point of ``surface`` (a KD-tree of the
+    layer's surface samples). Ring walks follow the mesh; the straight links between rings and into
+    spliced children do not, and across a fold of a curved layer or a notch in its edge such a link is
+    a bead laid through the air, outside the part (kitten 1 mm, layer 64: a 4 mm link across a fold
+    0.75 mm outside the solid, its whole bead beyond it). There the piece ends and a travel move takes
+    its place. Only segments longer than ``OFF_LAYER`` widths are tested (a shorter one cannot leave)."""
+    out = []
+    for p in passes:
+        if len(p) < 2:
+            out.append(p)
+            continue
+        seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        long = np.flatnonzero(seg > OFF_LAYER * width)
+        if not len(long):
+            out.append(p)
+            continue
+        u = np.array([0.25, 0.5, 0.75])
+        probe = (p[long, None] + u[None, :, None] * (p[long + 1] - p[long])[:, None]).reshape(-1, 3)
+        far = np.isinf(surface.query(probe, distance_upper_bound=OFF_LAYER * width)[0]).reshape(-1, 3).any(axis=1)
+        cuts = long[far] + 1
+        out += [q for q in np.split(p, cuts) if len(q)]
+    return out
 
 
 def uncross(piece: np.ndarray, width: float, rounds: int = UNCROSS_ROUNDS) -> np.ndarray:

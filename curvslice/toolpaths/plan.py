@@ -22,7 +22,7 @@ from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import fill_slivers, layer_beads, nearest_below, surface_samples
 from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, MAX_SHIFT,
                                            SUBDIVIDE_EDGE, THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
-from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
+from curvslice.toolpaths.passes import join_touching, split_off_layer, thin_passes, uncross
 from curvslice.toolpaths.resampling import bead_room, extrusion_amounts, resample
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands, split_pinches
 from curvslice.toolpaths.spirals import connected_spirals
@@ -44,6 +44,7 @@ class LayerPaths:
     closed_components: int = 0
     gap_passes: int = 0  #: passes through what the others leave open, kept after needed_pieces
     bridged_holes: int = 0
+    off_layer_links: int = 0  #: links cut because they left the layer (:func:`split_off_layer`)
     travel: float = 0.0
     max_distance: float = 0.0
 
@@ -258,6 +259,9 @@ def _beaded_pieces(r: LayerRings, width: float, start: np.ndarray | None = None,
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))
     passes = join_touching([p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9], width)
+    cut = split_off_layer(passes, cKDTree(r.samples[0]), width)
+    out.off_layer_links = len(cut) - len(passes)
+    passes = [p for p in cut if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
     out.pieces, out.widths, out.gap_passes = layer_beads(surface, v, f, passes, width, min_bead, fill_gaps, r.samples)
     order = _order_pieces(out.pieces, start)
     ends = [(out.pieces[i][-1], out.pieces[i][0]) if reverse else (out.pieces[i][0], out.pieces[i][-1])
@@ -553,7 +557,8 @@ def _orient_layer(k: int, folded: _Folded, prepared: _Prepared, surfaces: list[t
            "travel_mm": round(paths.travel, 3), "rings": paths.rings, "regions": paths.regions,
            "splices": paths.splices, "failed_splices": paths.failed_splices,
            "closed_components": paths.closed_components, "gap_passes": paths.gap_passes,
-           "bridged_holes": paths.bridged_holes, "thin_passes": paths.thin_passes, "max_distance_mm": round(paths.max_distance, 3),
+           "bridged_holes": paths.bridged_holes, "off_layer_links": paths.off_layer_links,
+           "thin_passes": paths.thin_passes, "max_distance_mm": round(paths.max_distance, 3),
            "samples": 0, "length_mm": 0.0}
     if samples:
         q = np.vstack(samples)

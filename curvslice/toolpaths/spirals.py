@@ -258,13 +258,35 @@ class _Builder:
         self.edge = edge  #: points of the layer's edge (:func:`_dot_chord`)
 
     def chain_from(self, ring_id: int) -> list[int]:
+        """The rings nested from ``ring_id`` inwards while each band holds one ring more. A chain that
+        turns back down -- a ring entered from its higher side, the band between it and the ring before
+        bounded by both from below -- across a thin band (:meth:`_thin_band`) stops before that ring: the
+        band is an annulus whose two sides lie closer than a bead, and the first ring's pass, fitted to the
+        strip, prints it all (two passes would lay their beads over each other)."""
         chain = [ring_id]
         while True:
             comp = self.tree.child_comp.get(chain[-1])
             kids = self.tree.child_rings.get(comp, []) if comp is not None else []
             if len(kids) != 1:
                 return chain
+            if self.tree.rings[kids[0]].above == comp and self._thin_band(chain[-1], kids[0]):
+                return chain
             chain.append(kids[0])
+
+    def _thin_band(self, a: int, b: int) -> bool:
+        """Whether rings ``a`` and ``b``, both bounding the band above them from below, hold between them a
+        band printed by one pass: it rises less above them than a thin loop (:func:`lone_thin_loop`)."""
+        return all(lone_thin_loop(self.tree.rings[i], self.w) for i in (a, b))
+
+    def _encloses(self, ring_id: int) -> bool:
+        """Whether ``ring_id`` alone bounds the band above it, the region its own loop encloses: only then
+        is that region a strip between the loop's own two sides, whose centre line
+        (:func:`~curvslice.toolpaths.rings.loop_centre_line`) pairs them. A ring sharing its band with
+        another (an annulus between an outer and an inner ring) encloses the other's hole as well: the
+        pairing of its sides ran across that hole (a thin-walled box at 1 mm, layer 5: a bead laid 15 mm
+        through the box's inside)."""
+        above = self.tree.rings[ring_id].above
+        return not any(r.above == above for i, r in enumerate(self.tree.rings) if i != ring_id)
 
     def piece(self, ring_id: int, anchor: np.ndarray, host_tangent: np.ndarray | None,
               siblings: list[int] = ()) -> np.ndarray:
@@ -277,7 +299,7 @@ class _Builder:
         inner = self.tree.rings[chain[-1]]
         inner_comp = self.tree.child_comp.get(chain[-1])
         if (len(chain) > 1 and inner.length >= DOT_RING * self.w and inner.rise < thin_rise(inner.floor, self.w)
-                and len(self.tree.child_rings.get(inner_comp, [])) <= 1):
+                and len(self.tree.child_rings.get(inner_comp, [])) <= 1 and self._encloses(chain[-1])):
             self.extra_pieces.append(loop_centre_line(inner.points))
             chain = chain[:-1]
         rings = [self.tree.rings[i] for i in chain]
@@ -311,7 +333,7 @@ class _Builder:
             hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
         if siblings:
             hosted.setdefault(0, []).extend(siblings)
-        if len(rings) == 1 and not hosted and lone_thin_loop(rings[0], self.w):
+        if len(rings) == 1 and not hosted and lone_thin_loop(rings[0], self.w) and self._encloses(chain[0]):
             # a loop whose sides lie closer than a bead: one pass down its middle, the bead as wide
             # as the region (fit_beads), instead of two sides printed over each other; a round one is a
             # blob, whose farthest pair of points is any diameter: the centre line of the blob, as a lone
@@ -411,7 +433,7 @@ class _Builder:
         comp = self.tree.child_comp.get(ring_id)
         ring = self.tree.rings[ring_id]
         return (not self.tree.child_rings.get(comp, []) and ring.length >= DOT_RING * self.w
-                and lone_thin_loop(ring, self.w))
+                and lone_thin_loop(ring, self.w) and self._encloses(ring_id))
 
     def _separate(self, ring_id: int) -> None:
         self.failed += 1

@@ -7,7 +7,10 @@ one its extrusion deposits: the stadium section ``h·(b − h) + π h²/4`` (h t
 thickness) of the filament volume ``E·π d²/4`` spread over the segment's length, solved for ``b``
 (d from the G-code header; a path's first sample takes its first segment's width), orientation continuity (consecutive
 samples of one piece within 10°), orientation validity (unit, on the unprinted side of the
-layer), samples lying on their layer, extrusion sanity and the G-code agreeing with the arrays.
+layer), samples lying on their layer, printed beads touching the solid (a bead laid across a hole
+or beside the part, its centre line more than half its width outside H: generalized winding number of ∂H
+at points along every extruding segment, as the layers' check),
+extrusion sanity and the G-code agreeing with the arrays.
 """
 
 from __future__ import annotations
@@ -20,12 +23,15 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from curvslice.verify import Check, layer_list
+from curvslice.verify.layers import TOLERANCE, winding_numbers
 
 STAGE = "toolpaths"
 COVERAGE_MIN = 0.95
 OVERLAP_MAX = 0.05
 CONTINUITY_MIN = 0.99
 MAX_STEP_ANGLE = np.radians(10.0)
+#: Spacing (path widths) of the points along printed segments tested for lying inside H.
+INSIDE_SPACING = 0.5
 _HEADER = re.compile(r"^;\s*(path_width|filament_diameter)\s*=\s*([-+0-9.eE]+)")
 _MOVE = re.compile(r"^(G0|G1)\s")
 _NUM = re.compile(r"(nX|nY|nZ|[XYZEF])([-+]?[0-9.]+)")
@@ -115,6 +121,34 @@ def layer_cover(mesh: trimesh.Trimesh, positions: np.ndarray, path: np.ndarray, 
     return float(covered.mean()), float(np.mean(np.isin(np.arange(count), r[starts][spread > reach])))
 
 
+def segments_outside(solid: trimesh.Trimesh, positions: np.ndarray, path: np.ndarray, extrusion: np.ndarray,
+                     width: float, voxel: float) -> tuple[np.ndarray, np.ndarray]:
+    """Printed segments whose centre line leaves the solid H: points every ``INSIDE_SPACING`` widths
+    along each extruding segment (its inner points; the samples themselves are checked on their layers)
+    with a generalized winding number of ∂H below ½ and farther than
+    :data:`~curvslice.verify.layers.TOLERANCE` voxel widths from ∂H. Returns the index of the sample
+    ending each such segment and how far its farthest point lies outside (mm)."""
+    seg = np.linalg.norm(np.diff(positions, axis=0), axis=1)
+    printed = np.flatnonzero((path[1:] == path[:-1]) & (extrusion[1:] > 0) & (seg > 1e-9))
+    if not len(printed) or not len(solid.faces):
+        return np.zeros(0, np.int64), np.zeros(0)
+    n = np.maximum(np.ceil(seg[printed] / (INSIDE_SPACING * width)), 2).astype(np.int64)
+    i = np.repeat(printed, n - 1)
+    u = (np.arange(int((n - 1).sum())) - np.repeat(np.cumsum(n - 1) - (n - 1), n - 1) + 1) / np.repeat(n, n - 1)
+    pts = positions[i] + u[:, None] * (positions[i + 1] - positions[i])
+    doubt = winding_numbers(solid, pts) < 0.5
+    off = np.zeros(len(pts))
+    if doubt.any():
+        off[doubt] = trimesh.proximity.closest_point(solid, pts[doubt])[1]
+    bad = off > TOLERANCE * voxel
+    if not bad.any():
+        return np.zeros(0, np.int64), np.zeros(0)
+    which, first = np.unique(i[bad], return_inverse=True)
+    far = np.zeros(len(which))
+    np.maximum.at(far, first, off[bad])
+    return which + 1, far
+
+
 def checks(outdir: Path) -> list[Check] | None:
     outdir = Path(outdir)
     npz_path = outdir / "toolpaths.npz"
@@ -190,4 +224,18 @@ def checks(outdir: Path) -> list[Check] | None:
             f"{int(np.sum(dots <= 0))} samples point into printed side", "unit length, t·n > 0 with n the layer normal at the closest point")
         add("samples on layers", max(on_surface) <= 0.05 * width, f"max off-surface {max(on_surface):.3f} mm",
             "distance to the layer ≤ 5% of the path width")
+    solid_path, field_path = outdir / "solid.stl", outdir / "field.npz"
+    if solid_path.exists() and field_path.exists():
+        with np.load(field_path) as f:
+            voxel = float(f["voxel_size"])
+        ends, far = segments_outside(trimesh.load(solid_path, force="mesh"), pos, path, extrusion, width, voxel)
+        half = 0.5 * np.where(np.isfinite(bead[ends]), bead[ends], width)
+        loose = far > half  # the centre more than half the bead outside: the whole bead lies beyond the part
+        where = np.unique(layer[ends[loose]])
+        add("printed segments inside H", not loose.any(), f"{int(loose.sum())} beads wholly outside H",
+            (f"farthest {far[loose].max():.2f} mm outside, on layers {layer_list(where)}; " if loose.any() else "")
+            + f"{int((~loose).sum())} more segments' centre lines leave H by less than half their bead"
+            + (f" (max {far[~loose].max():.2f} mm)" if (~loose).any() else "")
+            + f"; points every {INSIDE_SPACING:g} w along every extruding segment, inside by the winding number "
+            f"or within {TOLERANCE} voxel of ∂H", tuple(where))
     return results
