@@ -550,8 +550,15 @@ def connected_spirals(rings: list[Ring], width: float, start: np.ndarray | None,
         remaining -= set(order)
         builder.tree = tree
         roots = tree.child_rings.get(root, [])
-        main = max(roots, key=lambda i: rings[i].length)
-        piece = builder.piece(main, cursor, None, siblings=[i for i in roots if i != main])
+        # a thin leaf loop is printed down its middle, never walked round as a host of the others (two
+        # sides under a bead apart: the cup's thin wall, split by a curved layer into arcs, 11 % overlap)
+        hosts = [i for i in roots if not builder._thin_leaf(i)] or roots
+        main = max(hosts, key=lambda i: rings[i].length)
+        others = [i for i in roots if i != main]
+        if builder._thin_leaf(main):  # all thin leaves: each its own centre line
+            builder.extra_pieces += [builder.piece(i, cursor, None) for i in others]
+            others = []
+        piece = builder.piece(main, cursor, None, siblings=others)
         pieces.append(piece)
         cursor = piece[-1]
     return pieces + builder.extra_pieces, len(pieces), builder.splices, builder.failed
