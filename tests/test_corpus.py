@@ -3,7 +3,8 @@ the tool-paths and re-checked by every ``curvslice verify`` check.
 
 Procedural solids probe one feature each -- thin walls, sharp tips, an overhanging arch, a hole
 through the part, a tall needle, flat faces on voxel faces (a cantilevered L, an inverted cone), a closed
-cavity, overhangs all round (a flat torus, a sphere, a lying capsule, a mushroom's cap, a leaning cylinder)
+cavity, overhangs all round (a flat torus, a sphere, a lying capsule, a mushroom's cap, a leaning cylinder),
+walls thinner than two beads (a vase, a cup with a handle, a dome's shell), a twisted prism
 -- and the eight shared models run at a coarse voxel: slice and
 verify take 1.5-3 CPU-seconds per solid and 4-14 per shared model (bunny the most; measured as
 process CPU time on a loaded 2-core machine, so about the wall time on an idle core), some 75 s in
@@ -53,6 +54,14 @@ KNOWN_FAILURES = {
     # cylinder failed too, layer 12 off its own voxels, until working_surfaces._beside_own; the mushroom,
     # 6.2 % overlap on its stem's one-ring layer 10, until trim_seams read the ends' headings over half a width)
     "torus": "tool-paths: overlap 5.5 % (layer 4)",
+    # added on 2026-11-27 (tenth session), failing on their first run. The vase's wall (1.6 mm) is thinner than
+    # the path width (1.9 mm at 1.5 mm voxels): curved layers climb the wall and their loops overlap; two layers
+    # grazing its floor hold exactly half a voxel of material and have no surface (the limit is < 0.5). The
+    # dome's inside overhangs all round: small layers along its inner skin hold up to 1.1 voxels of material
+    # without a surface, and layers 10 and 12 overlap. (A thin-walled cup, fixed: 11 % overlap at 1 mm until a
+    # thin leaf loop stopped hosting its siblings; a twisted prism passes.)
+    "vase": "layers: 2 empty layers with 0.5 voxels of material; tool-paths: overlap 24.3 % (layer 19)",
+    "dome": "layers: an empty layer with 1.06 voxels of material; tool-paths: overlap 8.4 % (layers 10, 12)",
 }
 
 
@@ -61,14 +70,15 @@ def _box(extents, centre) -> trimesh.Trimesh:
 
 
 def _boolean(a: trimesh.Trimesh, b: trimesh.Trimesh, op: str) -> trimesh.Trimesh:
-    """Exact union / difference by manifold3d (the standard mesh-boolean backend of trimesh)."""
+    """Exact union / difference / intersection by manifold3d (the standard mesh-boolean backend of trimesh)."""
     import manifold3d as mf
 
     def to_manifold(m: trimesh.Trimesh) -> mf.Manifold:
         return mf.Manifold(mf.Mesh(vert_properties=np.asarray(m.vertices, np.float32),
                                    tri_verts=np.asarray(m.faces, np.uint32)))
 
-    out = to_manifold(a) + to_manifold(b) if op == "union" else to_manifold(a) - to_manifold(b)
+    ops = {"union": lambda x, y: x + y, "difference": lambda x, y: x - y, "intersection": lambda x, y: x ^ y}
+    out = ops[op](to_manifold(a), to_manifold(b))
     mesh = out.to_mesh()
     return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts))
 
@@ -119,7 +129,31 @@ def procedural_solid(name: str) -> trimesh.Trimesh:
         cylinder = trimesh.creation.cylinder(radius=5, height=30, sections=48)
         cylinder.apply_transform(trimesh.transformations.rotation_matrix(np.radians(40), [1, 0, 0]))
         return _resting(_boolean(_resting(cylinder), _box([20, 30, 3], [0, 0, 1.5]), "union"))
+    if name == "vase":  # an open cylinder with a 1.6 mm wall, thinner than the path width at 1.5 mm voxels
+        return _boolean(_cylinder(12, 30, 0), _cylinder(10.4, 30, 1.5), "difference")
+    if name == "cup":  # a 1.5 mm wall with a handle: thin arcs of wall meet a ring-shaped handle
+        handle = trimesh.creation.torus(major_radius=6, minor_radius=1.5, major_sections=48, minor_sections=16)
+        handle.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+        handle.apply_translation([12, 0, 12])
+        cup = _boolean(_cylinder(10, 25, 0), _cylinder(8.5, 25, 1.5), "difference")
+        return _boolean(cup, _boolean(handle, _cylinder(9.5, 25, 0), "difference"), "union")
+    if name == "dome":  # a hemispherical shell 2 mm thick standing on its rim: its inside overhangs all round
+        shell = _boolean(trimesh.creation.icosphere(subdivisions=4, radius=15),
+                         trimesh.creation.icosphere(subdivisions=4, radius=13), "difference")
+        return _resting(_boolean(shell, _box([40, 40, 20], [0, 0, 10]), "intersection"))
+    if name == "twist":  # a square prism twisted by 90 degrees over its 30 mm height
+        import manifold3d as mf
+
+        mesh = mf.Manifold.extrude(mf.CrossSection.square([14, 14], True), 30, 20, 90).to_mesh()
+        return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts))
     raise ValueError(name)
+
+
+def _cylinder(radius: float, height: float, bottom: float) -> trimesh.Trimesh:
+    """A vertical cylinder standing at z = ``bottom``."""
+    cylinder = trimesh.creation.cylinder(radius=radius, height=height, sections=96)
+    cylinder.apply_translation([0, 0, bottom + height / 2])
+    return cylinder
 
 
 def _resting(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
@@ -129,7 +163,7 @@ def _resting(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 
 
 SOLIDS = ["thin-walls", "sharp-tips", "arch", "hole", "needle", "overhang-l", "inverted-cone", "hollow-box", "torus",
-          "sphere", "capsule", "mushroom", "tilted-cylinder"]
+          "sphere", "capsule", "mushroom", "tilted-cylinder", "vase", "cup", "dome", "twist"]
 SHARED = ["kitten", "bunny", "fertility", "rocker-arm", "fandisk", "cheburashka", "cow", "homer"]
 
 
