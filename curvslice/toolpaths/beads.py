@@ -14,27 +14,31 @@ from curvslice.executors import query_threads
 from curvslice.orientation import closest_points, triangle_reach
 from curvslice.toolpaths.constants import (AHEAD_ANGLE, BEAD_RANGE, END_DEPTH, FIT_HALF, FIT_MARGIN, FIT_SAMPLE, FIT_STEP, MAX_SHIFT, MINOR_SHARE,
                                            OPEN_GAP, REDUNDANT_LENGTH, SAME_PASS_BEADS, SEAM_CHORD)
-from curvslice.toolpaths.passes import gap_passes
+from curvslice.toolpaths.passes import gap_passes, split_off_layer
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
 
 
 def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, passes: list[np.ndarray],
                 width: float, min_bead: Callable[[np.ndarray], np.ndarray] | None,
-                fill_gaps: bool, samples: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray], int]:
+                fill_gaps: bool, samples: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray], int, int]:
     """The beads of one layer's ``passes`` over ``surface`` (its bridged, possibly subdivided mesh
     ``vertices``/``faces`` for the gap search; ``samples``: its :func:`surface_samples`, which do not depend
-    on the passes): every pass fitted to its strip (:func:`fit_beads`),
+    on the passes): the passes cut where a link leaves the layer (:func:`split_off_layer`, by the layer's
+    closest points), every pass fitted to its strip (:func:`fit_beads`),
     :func:`gap_passes` through what even the widest beads leave open when ``fill_gaps`` (then all
     refitted), redundant pieces dropped and the others refitted over their strips
     (:func:`needed_pieces`; without take-over when a refit falls short), loops' seams trimmed
     (:func:`trim_seams`: it moves pass ends, so it stays here). Returns the pieces, their
-    per-vertex bead widths (mm) and how many gap passes were kept. The caller's last step is widening
-    the beads over the slivers (:func:`fill_slivers`): it changes widths only, never a piece or where it
+    per-vertex bead widths (mm), how many gap passes were kept and how many links were cut. The caller's
+    last step is widening the beads over the slivers (:func:`fill_slivers`): it changes widths only, never a piece or where it
     ends, so it need not run where the pieces are made (a layer's pieces decide where the next layer
     starts, :func:`curvslice.toolpaths.plan.plan_toolpaths`)."""
-    owners = _Owners(samples[0], [resample(p, FIT_STEP * width) for p in passes])
     projector = _Projector(surface)
+    cut = split_off_layer(passes, lambda x: projector(x)[1], width)
+    links = len(cut) - len(passes)
+    passes = [p for p in cut if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
+    owners = _Owners(samples[0], [resample(p, FIT_STEP * width) for p in passes])
     pieces, widths = _fit_owned(surface, samples, owners, width, min_bead, projector)
     fill = gap_passes(vertices, faces, pieces, width, widths) if fill_gaps and len(faces) else []
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
@@ -54,7 +58,7 @@ def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarra
             refit = _fit_owned(surface, samples, kept, width, min_bead, projector)
         pieces, widths = refit
     pieces, widths = trim_ends(*trim_seams(pieces, widths, width), width)
-    return pieces, widths, int(is_gap[needed].sum())
+    return pieces, widths, int(is_gap[needed].sum()), links
 
 
 def _window(values: np.ndarray, start: np.ndarray, stop: np.ndarray, half: int, how: str) -> np.ndarray:

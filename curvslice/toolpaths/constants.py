@@ -164,9 +164,8 @@ GAP_PASS_LENGTH = 0.5
 #: (:func:`~curvslice.toolpaths.passes.join_touching`): half the narrowest bead, so their caps would
 #: overlap by more than half of it, while the joining link stays within the cap it replaces.
 JOIN_GAP = 0.5 * BEAD_MIN
-#: A segment of a pass leaves its layer when a point along it lies farther than this many widths from
-#: every surface sample (a lattice about 0.14 w apart, :func:`~curvslice.toolpaths.beads.surface_samples`):
-#: a straight link between rings across a fold or a notch of the layer, laid through the air
+#: A segment of a pass leaves its layer when a point along it lies farther than this many widths from the
+#: layer (its closest point): a straight link between rings across a fold or a notch of the layer, laid through the air
 #: (:func:`~curvslice.toolpaths.passes.split_off_layer`). A link's chord over a layer curved to a radius of
 #: two widths sags by 0.3 w over its longest, 3 w.
 OFF_LAYER = 0.5

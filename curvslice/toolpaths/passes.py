@@ -4,6 +4,8 @@ where a link leaves the layer."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components, dijkstra
@@ -197,28 +199,25 @@ def join_touching(passes: list[np.ndarray], width: float) -> list[np.ndarray]:
     return joined
 
 
-def split_off_layer(passes: list[np.ndarray], surface: cKDTree, width: float) -> list[np.ndarray]:
+def split_off_layer(passes: list[np.ndarray], off: Callable[[np.ndarray], np.ndarray],
+                    width: float) -> list[np.ndarray]:
     """``passes`` cut in two wherever a segment leaves the layer: a point at a quarter, half or three
-    quarters of it lies more than ``OFF_LAYER`` widths from every point of ``surface`` (a KD-tree of the
-    layer's surface samples). Ring walks follow the mesh; the straight links between rings and into
-    spliced children do not, and across a fold of a curved layer or a notch in its edge such a link is
-    a bead laid through the air, outside the part (kitten 1 mm, layer 64: a 4 mm link across a fold
-    0.75 mm outside the solid, its whole bead beyond it). There the piece ends and a travel move takes
-    its place. Only segments longer than ``OFF_LAYER`` widths are tested (a shorter one cannot leave)."""
-    out = []
-    for p in passes:
-        if len(p) < 2:
-            out.append(p)
-            continue
-        seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
-        long = np.flatnonzero(seg > OFF_LAYER * width)
-        if not len(long):
-            out.append(p)
-            continue
-        u = np.array([0.25, 0.5, 0.75])
-        probe = (p[long, None] + u[None, :, None] * (p[long + 1] - p[long])[:, None]).reshape(-1, 3)
-        far = np.isinf(surface.query(probe, distance_upper_bound=OFF_LAYER * width)[0]).reshape(-1, 3).any(axis=1)
-        cuts = long[far] + 1
+    quarters of it lies more than ``OFF_LAYER`` widths from the layer (``off(points)``: their distances to
+    it). Ring walks follow the mesh; the straight links between rings and into spliced children do not,
+    and across a fold of a curved layer or a notch in its edge such a link is a bead laid through the air,
+    outside the part (kitten 1 mm, layer 64: a 4 mm link across a fold 0.75 mm outside the solid, its whole
+    bead beyond it). There the piece ends and a travel move takes its place. Only segments longer than
+    ``OFF_LAYER`` widths are tested (a shorter one cannot leave)."""
+    long = [np.flatnonzero(np.linalg.norm(np.diff(p, axis=0), axis=1) > OFF_LAYER * width) for p in passes]
+    u = np.array([0.25, 0.5, 0.75])
+    probe = [(p[k, None] + u[None, :, None] * (p[k + 1] - p[k])[:, None]).reshape(-1, 3) for p, k in zip(passes, long)]
+    if not sum(len(q) for q in probe):
+        return list(passes)
+    far = off(np.vstack(probe)) > OFF_LAYER * width
+    out, at = [], 0
+    for p, k in zip(passes, long):
+        cuts = k[far[at:at + 3 * len(k)].reshape(-1, 3).any(axis=1)] + 1
+        at += 3 * len(k)
         out += [q for q in np.split(p, cuts) if len(q)]
     return out
 

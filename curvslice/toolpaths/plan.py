@@ -22,7 +22,7 @@ from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import fill_slivers, layer_beads, nearest_below, surface_samples
 from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, MAX_SHIFT,
                                            SUBDIVIDE_EDGE, THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
-from curvslice.toolpaths.passes import join_touching, split_off_layer, thin_passes, uncross
+from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
 from curvslice.toolpaths.resampling import bead_room, extrusion_amounts, resample
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands, split_pinches
 from curvslice.toolpaths.spirals import connected_spirals
@@ -259,10 +259,8 @@ def _beaded_pieces(r: LayerRings, width: float, start: np.ndarray | None = None,
                      splices=splices, failed_splices=failed, closed_components=closed, max_distance=top,
                      bridged_holes=bridged, thin_passes=len(thin))
     passes = join_touching([p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9], width)
-    cut = split_off_layer(passes, cKDTree(r.samples[0]), width)
-    out.off_layer_links = len(cut) - len(passes)
-    passes = [p for p in cut if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
-    out.pieces, out.widths, out.gap_passes = layer_beads(surface, v, f, passes, width, min_bead, fill_gaps, r.samples)
+    out.pieces, out.widths, out.gap_passes, out.off_layer_links = layer_beads(surface, v, f, passes, width, min_bead,
+                                                                               fill_gaps, r.samples)
     order = _order_pieces(out.pieces, start)
     ends = [(out.pieces[i][-1], out.pieces[i][0]) if reverse else (out.pieces[i][0], out.pieces[i][-1])
             for i, reverse in order]
