@@ -657,6 +657,21 @@ def test_thin_annulus_is_one_loop_round_its_hole():
     assert len(result.pieces) == 1 and coverage >= 0.95 and overlap <= 0.05
 
 
+def test_a_thin_c_shaped_loop_is_never_printed_across_its_hole():
+    """A thin wall bent round a hole into a C (300° of a ring 1.7 widths across, beads at least one width
+    wide: a thin loop): the centre line pairing the loop's sides between its farthest points runs across
+    the C's hole (an unseen cup at 0.8 mm, layer 15: a bead 6.2 mm outside the solid), so the loop is
+    walked round instead; nothing is printed over the hole."""
+    width = 1.0
+    outer, inner = 10.0, 8.3
+    ring = sg.Point(0, 0).buffer(outer, 256).difference(sg.Point(0, 0).buffer(inner, 256))
+    cut = sg.Polygon([(0, 0), (-20, -20 * np.tan(np.radians(30))), (-20, 20 * np.tan(np.radians(30)))])
+    mesh = polygon_mesh(ring.difference(cut), 0.15)
+    result = layer_paths(mesh, width, min_bead=lambda p: np.full(len(p), 1.0 * width))
+    radius = np.linalg.norm(np.vstack(result.pieces)[:, :2], axis=1)
+    assert radius.min() > inner - 0.05 * width  # no pass over the hole
+
+
 def test_slivers_touching_at_a_vertex_are_one_pass(monkeypatch):
     """Two chains of four sliver diamonds (1.4 × 0.4 w) touching tip to tip at single vertices, off
     the tips of a larger diamond (homer 0.8 layer 38, a layer pinched by the voxel steps): each
