@@ -124,18 +124,18 @@ def layer_cover(mesh: trimesh.Trimesh, positions: np.ndarray, path: np.ndarray, 
 def segments_outside(solid: trimesh.Trimesh, positions: np.ndarray, path: np.ndarray, extrusion: np.ndarray,
                      width: float, voxel: float) -> tuple[np.ndarray, np.ndarray]:
     """Printed segments whose centre line leaves the solid H: points every ``INSIDE_SPACING`` widths
-    along each extruding segment (its inner points; the samples themselves are checked on their layers)
+    along each extruding segment (:func:`_densify`; the samples themselves are checked on their layers)
     with a generalized winding number of ∂H below ½ and farther than
     :data:`~curvslice.verify.layers.TOLERANCE` voxel widths from ∂H. Returns the index of the sample
     ending each such segment and how far its farthest point lies outside (mm)."""
-    seg = np.linalg.norm(np.diff(positions, axis=0), axis=1)
-    printed = np.flatnonzero((path[1:] == path[:-1]) & (extrusion[1:] > 0) & (seg > 1e-9))
-    if not len(printed) or not len(solid.faces):
+    if len(positions) < 2 or not len(solid.faces):
         return np.zeros(0, np.int64), np.zeros(0)
-    n = np.maximum(np.ceil(seg[printed] / (INSIDE_SPACING * width)), 2).astype(np.int64)
-    i = np.repeat(printed, n - 1)
-    u = (np.arange(int((n - 1).sum())) - np.repeat(np.cumsum(n - 1) - (n - 1), n - 1) + 1) / np.repeat(n, n - 1)
-    pts = positions[i] + u[:, None] * (positions[i + 1] - positions[i])
+    pts, _, end = _densify(positions, path, INSIDE_SPACING * width)
+    inner = np.arange(len(pts)) < len(pts) - len(positions)  # (_densify appends the samples themselves)
+    keep = inner & (extrusion[end] > 0)
+    pts, i = pts[keep], end[keep] - 1  # i: the sample starting each point's segment
+    if not len(pts):
+        return np.zeros(0, np.int64), np.zeros(0)
     doubt = winding_numbers(solid, pts) < 0.5
     off = np.zeros(len(pts))
     if doubt.any():
