@@ -274,6 +274,18 @@ class _Builder:
                 return chain
             chain.append(kids[0])
 
+    def _past_thin_band(self, ring_id: int) -> list[int]:
+        """The rings beyond a thin band that stopped a chain at ``ring_id`` (:meth:`chain_from`): the rings
+        nested inside the band's other ring, on its far side. That ring is printed by the chain's last pass,
+        the rings past it are not, so the chain's last ring hosts them (a torus at 1.5 mm, layer 4: an
+        annulus whose crest is such a band; its inner half, three rings, was left to a gap pass, 80.9 %
+        coverage). None where the chain did not stop at a thin band."""
+        comp = self.tree.child_comp.get(ring_id)
+        kids = self.tree.child_rings.get(comp, []) if comp is not None else []
+        if len(kids) != 1 or self.tree.rings[kids[0]].above != comp or not self._thin_band(ring_id, kids[0]):
+            return []
+        return list(self.tree.child_rings.get(self.tree.child_comp.get(kids[0]), []))
+
     def _thin_band(self, a: int, b: int) -> bool:
         """Whether rings ``a`` and ``b``, both bounding the band above them from below, hold between them a
         band printed by one pass: it rises less above them than a thin loop (:func:`lone_thin_loop`)."""
@@ -310,6 +322,7 @@ class _Builder:
         (and hosting no branches) is not part of the spiral: its two sides would be laid over each
         other, so it becomes one pass down its middle, a piece of its own."""
         chain = self.chain_from(ring_id)
+        beyond = self._past_thin_band(chain[-1])
         inner = self.tree.rings[chain[-1]]
         inner_comp = self.tree.child_comp.get(chain[-1])
         if (len(chain) > 1 and inner.length >= DOT_RING * self.w and inner.rise < thin_rise(inner.floor, self.w)
@@ -345,6 +358,8 @@ class _Builder:
         last_comp = self.tree.child_comp.get(chain[-1])
         if last_comp is not None and len(self.tree.child_rings.get(last_comp, [])) > 1:
             hosted[len(chain) - 1] = list(self.tree.child_rings[last_comp])
+        if beyond:
+            hosted.setdefault(len(chain) - 1, []).extend(beyond)
         if siblings:
             hosted.setdefault(0, []).extend(siblings)
         if len(rings) == 1 and not hosted and lone_thin_loop(rings[0], self.w) and self._encloses(chain[0]):
