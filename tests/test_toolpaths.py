@@ -672,6 +672,24 @@ def test_a_thin_c_shaped_loop_is_never_printed_across_its_hole():
     assert radius.min() > inner - 0.05 * width  # no pass over the hole
 
 
+def test_a_thin_loops_centre_line_is_used_only_inside_the_loop():
+    """fitting_centre_line, the guard of every thin loop's centre line (spirals, peaks, pinches): a straight
+    strip's line pairs its two sides (every point of it half the strip's breadth from them); a C-shaped strip's
+    line, paired from its farthest points across the C, would cross the hole, and is refused."""
+    from curvslice.toolpaths.rings import Ring, fitting_centre_line
+
+    strip = np.array(sg.box(0, 0, 10, 0.6).exterior.segmentize(0.05).coords)[:-1]
+    strip = np.c_[strip, np.zeros(len(strip))]
+    line = fitting_centre_line(Ring(0.0, strip, 0, 0, 0.0))
+    assert line is not None and np.ptp(line[:, 0]) > 9.0
+    middle = line[(line[:, 0] > 1.0) & (line[:, 0] < 9.0)]  # (its ends run into the strip's corners)
+    assert len(middle) and np.allclose(middle[:, 1], 0.3, atol=0.02)
+    c_shape = sg.Point(0, 0).buffer(5.0, 128).difference(sg.Point(0, 0).buffer(4.4, 128)).difference(
+        sg.Polygon([(0, 0), (-9, -4), (-9, 4)]))
+    loop = np.array(c_shape.exterior.coords)[:-1]
+    assert fitting_centre_line(Ring(0.0, np.c_[loop, np.zeros(len(loop))], 0, 0, 0.0)) is None
+
+
 def test_slivers_touching_at_a_vertex_are_one_pass(monkeypatch):
     """Two chains of four sliver diamonds (1.4 × 0.4 w) touching tip to tip at single vertices, off
     the tips of a larger diamond (homer 0.8 layer 38, a layer pinched by the voxel steps): each

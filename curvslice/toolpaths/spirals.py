@@ -18,7 +18,7 @@ from scipy.spatial import ConvexHull, cKDTree
 from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, CUT_STEP, DENSE_STEP, DOT_RING, FIRST_LEVEL,
                                            OPEN_GAP, SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS)
 from curvslice.toolpaths.resampling import resample
-from curvslice.toolpaths.rings import Ring, lone_thin_loop, loop_centre_line, thin_rise
+from curvslice.toolpaths.rings import Ring, fitting_centre_line, lone_thin_loop, loop_centre_line, thin_rise
 
 
 # ----------------------------------------------------------------------------- ring geometry
@@ -292,16 +292,10 @@ class _Builder:
         return all(lone_thin_loop(self.tree.rings[i], self.w) for i in (a, b))
 
     def _centre_fits(self, ring_id: int) -> bool:
-        """Whether the centre line of ``ring_id`` (:func:`~curvslice.toolpaths.rings.loop_centre_line`, its
-        sides paired between its farthest points) lies inside the loop: every point of it within the loop's
-        rise above its level plus its mean breadth of the loop. A C-shaped thin loop (a thin wall bent round a
-        hole) has its farthest points across the C, and the line pairing its sides from there crossed the hole
-        (an unseen cup at 0.8 mm, layer 15: a bead 6.2 mm outside the solid); such a loop is walked round."""
-        ring = self.tree.rings[ring_id]
+        """Whether the centre line of ``ring_id`` lies inside the loop
+        (:func:`~curvslice.toolpaths.rings.fitting_centre_line`); a loop whose line would leave it is walked round."""
         if ring_id not in self._fits:
-            line = loop_centre_line(ring.points)
-            reach = max(ring.top - ring.level, 0.0) + ring.breadth
-            self._fits[ring_id] = bool(cKDTree(ring.points).query(line)[0].max() <= reach) if len(line) else True
+            self._fits[ring_id] = fitting_centre_line(self.tree.rings[ring_id]) is not None
         return self._fits[ring_id]
 
     def _encloses(self, ring_id: int) -> bool:
