@@ -291,13 +291,21 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
             line = fitting_centre_line(r) if thin else None  # (one that leaves the loop: the peak is spiralled)
             if line is not None:
                 lines.append(line)
-            elif around and dot and (b >= 2 or not lone_thin_loop(around[0], width)) \
+            elif around and dot and (b >= 2 or not lone_thin_loop(around[0], width)
+                                     or bands.top[c] <= centre_reach(around[0].floor, width)) \
                     and rise <= reach + (0.5 - FIRST_LEVEL) * width * (b == 1):  # the outermost reaches farther
                 continue
             else:
                 extra.append(Ring(r.level, r.points, c, next_comp + r.above, r.top, floor))
         next_comp += len(sub.top)
     return extra, lines
+
+
+def centre_reach(floor: float, width: float) -> float:
+    """How far from a thin loop's centre line its pass covers: half its widest bead (``BEAD_RANGE[1]``, or twice
+    the layer thickness ``floor`` on thick layers, :func:`~curvslice.toolpaths.beads.fit_beads`) plus the hairline
+    (``OPEN_GAP − ½`` widths) that never counts as open."""
+    return (0.5 * max(BEAD_RANGE[1], 2.0 * floor) + OPEN_GAP - 0.5) * width
 
 
 def loop_centre_line(points: np.ndarray) -> np.ndarray:
