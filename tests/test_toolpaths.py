@@ -706,6 +706,20 @@ def test_a_thin_strips_small_bulge_is_printed_by_its_centre_pass_on_a_thick_laye
     assert coverage >= 0.95 and overlap <= 0.05
 
 
+def test_an_annulus_whose_crest_is_a_thin_band_is_printed_on_both_sides_of_it():
+    """An annulus 5.7 widths across on a layer one width thick: rings at 0.45, 1.45 and 2.45 w from either edge,
+    the two at 2.45 bounding a crest band that rises 0.4 w (one pass prints it). The spiral from the outer edge
+    stops before the crest's second ring; the rings past it, the annulus's inner half, are hosted by its last
+    ring (a torus at 1.5 mm, layer 4: left to one gap pass, 80.9 % coverage)."""
+    width = 1.0
+    mesh = polygon_mesh(sg.Point(0, 0).buffer(14, 256).difference(sg.Point(0, 0).buffer(14 - 5.7, 256)), 0.15)
+    result = layer_paths(mesh, width, min_bead=lambda p: np.full(len(p), 1.0 * width))
+    samples = [resample(np.c_[p, b], 0.5) for p, b in zip(result.pieces, result.widths)]
+    ids = np.concatenate([np.full(len(x), i) for i, x in enumerate(samples)])
+    coverage, overlap = layer_cover(mesh, np.vstack(samples)[:, :3], ids, width, bead=np.vstack(samples)[:, 3])
+    assert coverage >= 0.97 and overlap <= 0.02
+
+
 def test_slivers_touching_at_a_vertex_are_one_pass(monkeypatch):
     """Two chains of four sliver diamonds (1.4 × 0.4 w) touching tip to tip at single vertices, off
     the tips of a larger diamond (homer 0.8 layer 38, a layer pinched by the voxel steps): each
