@@ -16,7 +16,7 @@ import shapely
 from scipy.spatial import ConvexHull, cKDTree
 
 from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, CUT_STEP, DENSE_STEP, DOT_RING, FIRST_LEVEL,
-                                           OPEN_GAP, SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS)
+                                           OPEN_GAP, SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS, THIN_LOOP)
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.rings import Ring, fitting_centre_line, lone_thin_loop, loop_centre_line, thin_rise
 
@@ -288,8 +288,16 @@ class _Builder:
 
     def _thin_band(self, a: int, b: int) -> bool:
         """Whether rings ``a`` and ``b``, both bounding the band above them from below, hold between them a
-        band printed by one pass: it rises less above them than a thin loop (:func:`lone_thin_loop`)."""
-        return all(lone_thin_loop(self.tree.rings[i], self.w) for i in (a, b))
+        band printed by one pass: it rises less above them than a thin loop (:func:`lone_thin_loop`), by its
+        highest point or along most of it -- half the median gap between the two rings, as a thin loop's rise
+        is half its breadth (a cup's 1.2 w wall at 1 mm, layer 17: rings 0.3 w apart all round but where the
+        handle joins, 2.3 w; walked both sides, 7.9 % overlap). Where the band bulges wider than the one pass's
+        bead, the gap passes print the rest."""
+        ra, rb = self.tree.rings[a], self.tree.rings[b]
+        if lone_thin_loop(ra, self.w) and lone_thin_loop(rb, self.w):
+            return True
+        gap = float(np.median(cKDTree(rb.points).query(ra.points)[0]))
+        return 0.5 * gap < max(thin_rise(min(ra.floor, rb.floor), self.w), THIN_LOOP * self.w)
 
     def _centre_fits(self, ring_id: int) -> bool:
         """Whether the centre line of ``ring_id`` lies inside the loop
