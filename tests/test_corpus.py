@@ -65,7 +65,7 @@ KNOWN_FAILURES = {
     # twisted prism passes.)
     "vase": {"layers/a surface for every layer with material": "2 empty layers with 0.5 voxels of material"},
     "dome": {"layers/a surface for every layer with material": "an empty layer with 1.06 voxels of material",
-             "toolpaths/overlap": "8.4 % (layers 10, 12)"},
+             "toolpaths/overlap": "8.5 % (layer 12; layer 10 passes since two rings 0.3 w apart make a thin band)"},
 }
 
 
