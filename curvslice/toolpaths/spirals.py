@@ -255,7 +255,8 @@ class _Builder:
         self.splices = 0
         self.failed = 0
         self._ring_points: tuple[_Tree, cKDTree, np.ndarray] | None = None  # every ring's points, for _link_crosses
-        self._fits: dict[int, bool] = {}  # ring -> whether its centre line lies inside it (_centre_fits)
+        self._lines: dict[int, np.ndarray | None] = {}  # ring -> its centre line where it lies inside it (_centre_line)
+        self._bands: dict[tuple[int, int], bool] = {}  # rings (a, b) -> whether their band is thin (_thin_band)
         self.edge = edge  #: points of the layer's edge (:func:`_dot_chord`)
 
     def chain_from(self, ring_id: int) -> list[int]:
@@ -293,18 +294,21 @@ class _Builder:
         is half its breadth (a cup's 1.2 w wall at 1 mm, layer 17: rings 0.3 w apart all round but where the
         handle joins, 2.3 w; walked both sides, 7.9 % overlap). Where the band bulges wider than the one pass's
         bead, the gap passes print the rest."""
-        ra, rb = self.tree.rings[a], self.tree.rings[b]
-        if lone_thin_loop(ra, self.w) and lone_thin_loop(rb, self.w):
-            return True
-        gap = float(np.median(cKDTree(rb.points).query(ra.points)[0]))
-        return 0.5 * gap < max(thin_rise(min(ra.floor, rb.floor), self.w), THIN_LOOP * self.w)
+        if (a, b) not in self._bands:  # (chain_from asks again for every piece and splice through the band)
+            ra, rb = self.tree.rings[a], self.tree.rings[b]
+            thin = lone_thin_loop(ra, self.w) and lone_thin_loop(rb, self.w)
+            if not thin:
+                gap = float(np.median(cKDTree(rb.points).query(ra.points)[0]))
+                thin = 0.5 * gap < max(thin_rise(min(ra.floor, rb.floor), self.w), THIN_LOOP * self.w)
+            self._bands[(a, b)] = bool(thin)
+        return self._bands[(a, b)]
 
-    def _centre_fits(self, ring_id: int) -> bool:
-        """Whether the centre line of ``ring_id`` lies inside the loop
-        (:func:`~curvslice.toolpaths.rings.fitting_centre_line`); a loop whose line would leave it is walked round."""
-        if ring_id not in self._fits:
-            self._fits[ring_id] = fitting_centre_line(self.tree.rings[ring_id]) is not None
-        return self._fits[ring_id]
+    def _centre_line(self, ring_id: int) -> np.ndarray | None:
+        """The centre line of ``ring_id`` where it lies inside the loop
+        (:func:`~curvslice.toolpaths.rings.fitting_centre_line`), else ``None``: such a loop is walked round."""
+        if ring_id not in self._lines:
+            self._lines[ring_id] = fitting_centre_line(self.tree.rings[ring_id])
+        return self._lines[ring_id]
 
     def _encloses(self, ring_id: int) -> bool:
         """Whether ``ring_id`` alone bounds the band above it, the region its own loop encloses: only then
@@ -312,9 +316,9 @@ class _Builder:
         (:func:`~curvslice.toolpaths.rings.loop_centre_line`) pairs them. A ring sharing its band with
         another (an annulus between an outer and an inner ring) encloses the other's hole as well: the
         pairing of its sides ran across that hole (a thin-walled box at 1 mm, layer 5: a bead laid 15 mm
-        through the box's inside). And only where that centre line lies inside the loop (:meth:`_centre_fits`)."""
+        through the box's inside). And only where that centre line lies inside the loop (:meth:`_centre_line`)."""
         above = self.tree.rings[ring_id].above
-        return not any(r.above == above for i, r in enumerate(self.tree.rings) if i != ring_id) and self._centre_fits(ring_id)
+        return not any(r.above == above for i, r in enumerate(self.tree.rings) if i != ring_id) and self._centre_line(ring_id) is not None
 
     def piece(self, ring_id: int, anchor: np.ndarray, host_tangent: np.ndarray | None,
               siblings: list[int] = ()) -> np.ndarray:
@@ -329,7 +333,7 @@ class _Builder:
         inner_comp = self.tree.child_comp.get(chain[-1])
         if (len(chain) > 1 and inner.length >= DOT_RING * self.w and inner.rise < thin_rise(inner.floor, self.w)
                 and len(self.tree.child_rings.get(inner_comp, [])) <= 1 and self._encloses(chain[-1])):
-            self.extra_pieces.append(loop_centre_line(inner.points))
+            self.extra_pieces.append(self._centre_line(chain[-1]))
             chain = chain[:-1]
         rings = [self.tree.rings[i] for i in chain]
         cuts: list[float] = []
@@ -504,7 +508,7 @@ class _Builder:
         shifts = np.repeat(np.arange(1, SPLICE_SHIFTS + 1) * SPLICE_SHIFT * self.w, 2) * np.tile([1, -1], SPLICE_SHIFTS)
         for child in children:
             if self._thin_leaf(child):  # its centre line's two ends lie apart: the link back would run along it
-                self.extra_pieces.append(loop_centre_line(self.tree.rings[child].points))
+                self.extra_pieces.append(self._centre_line(child))
                 continue
             # where the child's cut line meets the host (its outermost cut, next to the host)
             cut_point = self.cut_line(self.chain_from(child), self._nearest_point(child, ring), spliced=True)[0]
