@@ -380,6 +380,28 @@ def test_verifier_catches_broken_layers(kitten_slice, tmp_path):
             "normals towards later layers"} <= failed
 
 
+def test_material_of_an_empty_layer_is_measured_piece_by_piece(kitten_slice, tmp_path):
+    # known answers on a box x in [0, 3.5], y and z in [0, 3] (1 mm voxels, centres at 0.5 + k): a piece of two
+    # voxels inside, a separate voxel whose centre lies on the face x = 3.5 (half of the 4x4x4 lattice inside),
+    # a third piece outside
+    box = trimesh.creation.box(extents=(3.5, 3, 3), transform=trimesh.transformations.translation_matrix((1.75, 1.5, 1.5)))
+    vox = np.zeros((6, 6, 6), bool)
+    vox[0, 0, 0] = vox[1, 0, 0] = vox[3, 2, 2] = vox[5, 5, 5] = True
+    material = verify_layers.layer_material(box, vox, np.full(3, 0.5), 1.0)
+    np.testing.assert_allclose(material, [2.0, 0.5, 0.0])
+    # a real layer with material emptied: the check fails (and passes on the untouched folder)
+    out = tmp_path / "emptied"
+    import shutil
+
+    shutil.copytree(kitten_slice, out)
+    name = "a surface for every layer with material"
+    assert {r.name: r.passed for r in verify_layers.checks(out)}[name]
+    files = sorted((out / "layers").glob("layer_*.ply"))
+    trimesh.Trimesh(np.zeros((0, 3)), np.zeros((0, 3), int)).export(files[len(files) // 2])
+    check = {r.name: r for r in verify_layers.checks(out)}[name]
+    assert not check.passed and "1 with material" in check.value
+
+
 def test_library_and_verifier_intersection_tests_agree():
     rng = np.random.default_rng(4)
     t1 = rng.normal(size=(20000, 3, 3))

@@ -3,7 +3,9 @@
 
 * one file per layer of G, and a non-empty surface for every layer whose voxels hold material of
   H (an empty layer passes only if a lattice of samples finds less than :data:`EMPTY_MATERIAL`
-  voxel volumes of H in its voxels — a layer of voxels that only graze ∂H);
+  voxel volumes of H in each connected piece of its voxels — pieces of voxels that only graze ∂H:
+  what a piece holds is deposited in one place, so a layer of many grazing voxels apart from each
+  other is judged piece by piece, not by their sum);
 * every layer vertex lies inside H — generalized winding number ≥ ½ (solid angles, Barill et al.
   2018; the nonzero rule, which the voxelizer follows too) — or within :data:`TOLERANCE` of ∂H
   (trimesh's closest point); the message counts the violations, not the vertices on ∂H, and how
@@ -27,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 import trimesh
+from scipy import ndimage
 from scipy.spatial import cKDTree
 
 from curvslice.geodesic import boundary_edges
@@ -35,7 +38,8 @@ from curvslice.verify import Check, layer_list
 STAGE = "layers"
 #: Distance to ∂H (voxel widths) within which a vertex counts as on the boundary (issue 3).
 TOLERANCE = 0.05
-#: Material (voxel volumes of H) below which a layer may have no surface.
+#: Material (voxel volumes of H) below which a connected piece of a layer's voxels may have no surface:
+#: half of what one voxel-long bead deposits on a layer one voxel thick.
 EMPTY_MATERIAL = 0.5
 #: Samples per voxel edge for the material estimate of an empty layer.
 MATERIAL_LATTICE = 4
@@ -250,15 +254,19 @@ def layer_voxels(growing: np.ndarray, layer: int, step: float) -> np.ndarray:
     return (growing > (layer - 1) * step + 0.5) & (growing <= layer * step + 0.5)
 
 
-def layer_material(solid: trimesh.Trimesh, voxels: np.ndarray, origin: np.ndarray, voxel_size: float) -> float:
-    """Volume of H inside the given voxels (in voxel volumes), from a lattice of samples."""
-    ijk = np.argwhere(voxels)
+def layer_material(solid: trimesh.Trimesh, voxels: np.ndarray, origin: np.ndarray, voxel_size: float) -> np.ndarray:
+    """Volume of H inside each connected piece (26-neighbourhood) of the given voxels (in voxel
+    volumes, largest first), from a lattice of samples; empty when there are no voxels."""
+    labels, count = ndimage.label(voxels, structure=np.ones((3, 3, 3), bool))
+    ijk = np.argwhere(labels > 0)
     if len(ijk) == 0:
-        return 0.0
+        return np.zeros(0)
     k = MATERIAL_LATTICE
     offs = (np.stack(np.meshgrid(*[np.arange(k)] * 3, indexing="ij"), -1).reshape(-1, 3) + 0.5) / k - 0.5
     pts = (origin + voxel_size * (ijk[:, None, :] + offs[None])).reshape(-1, 3)
-    return float(inside_by_ray_parity(solid, pts).sum()) / len(offs)
+    inside = inside_by_ray_parity(solid, pts).reshape(len(ijk), len(offs)).sum(axis=1)
+    piece = labels[ijk[:, 0], ijk[:, 1], ijk[:, 2]] - 1
+    return np.sort(np.bincount(piece, weights=inside, minlength=count) / len(offs))[::-1]
 
 
 def jump_voxels(growing: np.ndarray, occupied: np.ndarray) -> np.ndarray:
@@ -314,8 +322,9 @@ def checks(outdir: Path) -> list[Check] | None:
                          f"{len(files)} of {expected}", "" if len(files) == expected else "layers missing"))
     empty = [i + 1 for i, m in enumerate(layers) if len(m.faces) == 0]
     material = {layer: layer_material(solid, layer_voxels(growing, layer, step), origin, w) for layer in empty}
-    lost = [layer for layer in empty if material[layer] >= EMPTY_MATERIAL]
-    detail = ", ".join(f"{layer}: {material[layer]:.2f} voxels of material" for layer in empty[:10])
+    lost = [layer for layer in empty if material[layer][:1].sum() >= EMPTY_MATERIAL]
+    detail = ", ".join(f"{layer}: {material[layer].sum():.2f} voxels of material in {len(material[layer])} pieces"
+                       f" (largest {material[layer][:1].sum():.2f})" for layer in empty[:10])
     results.append(Check(STAGE, "a surface for every layer with material", not lost,
                          f"{len(empty)} empty, {len(lost)} with material", detail))
     live = [m for m in layers if len(m.faces)]
