@@ -21,10 +21,11 @@ from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels,
 
 def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, passes: list[np.ndarray],
                 width: float, min_bead: Callable[[np.ndarray], np.ndarray] | None,
-                fill_gaps: bool, samples: tuple[np.ndarray, np.ndarray, np.ndarray]) -> tuple[list[np.ndarray], list[np.ndarray], int, int]:
+                fill_gaps: bool, samples: tuple[np.ndarray, np.ndarray, np.ndarray], bridge: np.ndarray | None = None
+                ) -> tuple[list[np.ndarray], list[np.ndarray], int, int]:
     """The beads of one layer's ``passes`` over ``surface`` (its bridged, possibly subdivided mesh
     ``vertices``/``faces`` for the gap search; ``samples``: its :func:`surface_samples`, which do not depend
-    on the passes): the passes cut where a link leaves the layer (:func:`split_off_layer`, by the layer's
+    on the passes; ``bridge``: the vertices of its bridges' fans only): the passes cut where a link leaves the layer (:func:`split_off_layer`, by the layer's
     closest points), every pass fitted to its strip (:func:`fit_beads`),
     :func:`gap_passes` through what even the widest beads leave open when ``fill_gaps`` (then all
     refitted), redundant pieces dropped and the others refitted over their strips
@@ -40,7 +41,7 @@ def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarra
     passes = [p for p in cut if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9]
     owners = _Owners(samples[0], [resample(p, FIT_STEP * width) for p in passes])
     pieces, widths = _fit_owned(surface, samples, owners, width, min_bead, projector)
-    fill = gap_passes(vertices, faces, pieces, width, widths) if fill_gaps and len(faces) else []
+    fill = gap_passes(vertices, faces, pieces, width, widths, bridge=bridge) if fill_gaps and len(faces) else []
     if fill:  # what even the widest beads leave open gets passes of its own, then all are refitted
         owners.add([resample(p, FIT_STEP * width) for p in fill])
         pieces, widths = _fit_owned(surface, samples, owners, width, min_bead, projector)

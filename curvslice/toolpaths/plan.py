@@ -130,6 +130,7 @@ class LayerRings:
     closed: int = 0
     top: float = 0.0
     samples: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  #: :func:`surface_samples` of ``surface``
+    bridge: np.ndarray | None = None  #: (len(v),) vertices of the bridges' fans only (no surface under them)
 
 
 def layer_paths(mesh: trimesh.Trimesh, width: float, start: np.ndarray | None = None,
@@ -202,10 +203,14 @@ def _layer_rings(surface: trimesh.Trimesh, width: float, min_bead: Callable[[np.
                  leave_open: Collection[int]) -> LayerRings:
     """:func:`layer_rings` of a cleaned ``surface`` with the holes ``leave_open`` left open."""
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, BRIDGE_HOLE * np.pi * width, leave_open)
+    real = len(surface.faces)  # the fans come after the surface's own faces
     if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > SUBDIVIDE_EDGE * width:
         v, f = trimesh.remesh.subdivide(v, f)  # finer heat step (t = h²) and contours than the voxels
+        real *= 4  # (face i becomes faces 4i .. 4i + 3)
     if len(f) == 0:
         return LayerRings(surface, v, f, bridged)
+    bridge = np.ones(len(v), bool)
+    bridge[f[:real].ravel()] = False
     dist = boundary_distance(v, f)
     gap = contour_gap(v, f, dist, width)
     if abs(gap - 1.0) > GAP_NOISE:
@@ -229,7 +234,7 @@ def _layer_rings(surface: trimesh.Trimesh, width: float, min_bead: Callable[[np.
     extra, lines = peak_rings(v, f, dist, levels, rings, bands, width, floor_of)
     rings, necks = split_pinches(rings + extra, width, min_bead)
     lines += necks
-    return LayerRings(surface, v, f, bridged, rings, lines, thin, closed, top, surface_samples(surface, width))
+    return LayerRings(surface, v, f, bridged, rings, lines, thin, closed, top, surface_samples(surface, width), bridge)
 
 
 def layer_pieces(r: LayerRings, width: float, start: np.ndarray | None = None, fill_gaps: bool = True,
@@ -260,7 +265,7 @@ def _beaded_pieces(r: LayerRings, width: float, start: np.ndarray | None = None,
                      bridged_holes=bridged, thin_passes=len(thin))
     passes = join_touching([p for p in out.pieces + thin if len(p) > 1 and np.ptp(p, axis=0).max() > 1e-9], width)
     out.pieces, out.widths, out.gap_passes, out.off_layer_links = layer_beads(surface, v, f, passes, width, min_bead,
-                                                                               fill_gaps, r.samples)
+                                                                               fill_gaps, r.samples, r.bridge)
     order = _order_pieces(out.pieces, start)
     ends = [(out.pieces[i][-1], out.pieces[i][0]) if reverse else (out.pieces[i][0], out.pieces[i][-1])
             for i, reverse in order]
