@@ -567,3 +567,25 @@ def test_a_flat_face_on_a_voxel_face_belongs_to_one_layer(tmp_path, name, voxel)
     failed = [c for c in results if not c.passed]
     assert not failed, failed
     assert {"consecutive layers do not cross", "each layer lies on its own voxels"} <= {c.name for c in results}
+
+
+def test_a_lowered_top_layer_is_left_out_of_the_spacing_statistic(tmp_path):
+    """A plate 2 mm thick at 1.5 mm voxels has two layers: the interface of its top layer lies above the
+    plate, so that layer is extracted lower, 0.25 w over the first. The spacing statistic (a plausibility
+    check of the field's layering, Fig. 3.18) is taken over the layers at their own level only; counted in,
+    the lowered layer alone made the mean implausible and the slice fail."""
+    import json
+
+    plate = _box((50, 40, 2), (0, 0, 1))
+    plate.export(tmp_path / "plate.stl")
+    out = tmp_path / "plate"
+    assert main(["slice", str(tmp_path / "plate.stl"), "--voxel", "1.5", "--stages", "layers", "--quiet",
+                 "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["layers"]["count"] == 2 and report["layers"]["lowered"] == [2]
+    spacing = {r.name: r for r in verify_layers.checks(out)}["layer spacing"]
+    assert spacing.passed
+    report["layers"]["lowered"] = []  # the lowered layer counted in: 0.25 w, below the plausible range
+    (out / "report.json").write_text(json.dumps(report))
+    spacing = {r.name: r for r in verify_layers.checks(out)}["layer spacing"]
+    assert not spacing.passed and spacing.value.startswith("mean 0.25")
