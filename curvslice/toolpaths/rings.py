@@ -250,12 +250,12 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
     ``DOT_RING`` widths) inside a ring is left out where that ring's widest beads reach the
     peak: the spiral would turn on it, and its links in and out would lie side by side; alone
     in the outermost ring's band (a ridge of fragments along a strip) the dots' beads lay over the
-    ring's own, which widen to the ridge anyway (cheburashka 0.8 layer 4: 18 % overlap), unless
-    that ring would be a thin loop without the dot (:func:`lone_thin_loop`) and the dot's peak lies beyond
-    its centre pass's reach (:func:`centre_reach`): that pass would not cover the bulge the dot marks
-    (rocker-arm 0.8 layer 101), and the dot keeps the loop walked round both sides; within reach, the dot
-    only made the walk lay two beads over a strip one pass covers (a vase's wall at 1.5 mm, layer 19: 7 dots
-    along a strip 1.8 w wide on a layer 1 w thick, 24.3 % overlap). The
+    ring's own, which widen to the ridge anyway (cheburashka 0.8 layer 4: 18 % overlap). Where that ring
+    is a thin loop without the dot, a kept dot would make the loop walked round both sides, two beads over a
+    strip one centre pass covers (a vase's wall at 1.5 mm, layer 19: 7 dots along a strip 1.8 w wide on a
+    layer 1 w thick, 24.3 % overlap; a cup's wall where its handle joins, a T-shaped thin loop at 1 mm, layer
+    11: 7.4 %); a bulge the centre pass does not reach is left to a gap pass (rocker-arm 0.8 layer 101: 98.4
+    -> 97.5 % coverage, 2.9 -> 0.2 % overlap, when a dot beyond the pass's reach stopped keeping the walk). The
     widest bead ``BEAD_RANGE[1]`` reaches ``BEAD_RANGE[1] - ½`` widths inwards from an inner ring
     (its outer half-width is shared with the ring outside) and ``BEAD_RANGE[1] - FIRST_LEVEL``
     from the outermost one (the layer's edge lies ``FIRST_LEVEL`` outside it).
@@ -294,21 +294,12 @@ def peak_rings(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray, levels
             line = fitting_centre_line(r) if thin else None  # (one that leaves the loop: the peak is spiralled)
             if line is not None:
                 lines.append(line)
-            elif around and dot and (b >= 2 or not lone_thin_loop(around[0], width)
-                                     or bands.top[c] <= centre_reach(around[0].floor, width)) \
-                    and rise <= reach + (0.5 - FIRST_LEVEL) * width * (b == 1):  # the outermost reaches farther
+            elif around and dot and rise <= reach + (0.5 - FIRST_LEVEL) * width * (b == 1):  # the outermost reaches farther
                 continue
             else:
                 extra.append(Ring(r.level, r.points, c, next_comp + r.above, r.top, floor))
         next_comp += len(sub.top)
     return extra, lines
-
-
-def centre_reach(floor: float, width: float) -> float:
-    """How far from a thin loop's centre line its pass covers: half its widest bead (``BEAD_RANGE[1]``, or twice
-    the layer thickness ``floor`` on thick layers, :func:`~curvslice.toolpaths.beads.fit_beads`) plus the hairline
-    (``OPEN_GAP − ½`` widths) that never counts as open."""
-    return (0.5 * max(BEAD_RANGE[1], 2.0 * floor) + OPEN_GAP - 0.5) * width
 
 
 def loop_centre_line(points: np.ndarray) -> np.ndarray:
