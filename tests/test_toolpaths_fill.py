@@ -1,15 +1,19 @@
 """Beads over what the passes leave open (issue 18): the last widening of a layer's beads reaches every open
 sample up to the halfway line of the free space between two beads, and a sample the print pulls onto the
-layer keeps its bead where it takes nothing from another."""
+layer keeps its bead where it takes nothing from another; passes never added where nothing is open (a
+bridged hole) or beside a pass whose bead widens over the place (a thin strip that widens)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import shapely.geometry as sg
+import trimesh
 
 from curvslice.toolpaths.beads import fill_slivers, surface_samples
 from curvslice.toolpaths.constants import BEAD_RANGE
+from curvslice.toolpaths.plan import layer_paths
+from curvslice.toolpaths.resampling import resample
 from curvslice.verify.toolpaths import layer_cover
 from test_toolpaths import polygon_mesh
 
@@ -113,3 +117,21 @@ def test_no_gap_pass_runs_over_a_bridged_hole():
     assert gap_passes(r.v, r.f, [loop], width, bridge=r.bridge) == []
     over_hole = gap_passes(r.v, r.f, [loop], width)
     assert len(over_hole) == 1 and np.linalg.norm(over_hole[0][:, :2], axis=1).max() < 0.8
+
+
+def test_a_thin_strip_that_widens_gets_one_ridge_pass_not_a_second_beside_it():
+    """One arc of an unseen bowl shell's layer 40 at 0.6 mm (tests/data/bowl_arc.npz, in path widths: the
+    strip along the shell's inner skin, 0.44 w broad, widening to about 0.9 w at 45°): its ridge pass leaves
+    vertices beyond half its bead where the strip widens, which used to get a second ridge 3.3 w long beside
+    the first (a 'branch'; 17-23 % overlap). That ridge lies within reach of the first pass's widest bead: the
+    bead widens over it and the strip is one pass."""
+    from pathlib import Path
+
+    data = np.load(Path(__file__).parent / "data" / "bowl_arc.npz")
+    mesh = trimesh.Trimesh(data["vertices"], data["faces"], process=False)
+    for floor in (0.8, 1.0):
+        result = layer_paths(mesh, 1.0, start=np.array([0.0, 0.0, 30.0]), min_bead=lambda p: np.full(len(p), floor))
+        assert result.thin_passes == 1 and len(result.pieces) == 1
+        s = resample(np.c_[result.pieces[0], result.widths[0]], 0.25)
+        coverage, overlap = layer_cover(mesh, s[:, :3], np.zeros(len(s), int), 1.0, seed=1, bead=s[:, 3])
+        assert coverage >= 0.99 and overlap <= 0.01

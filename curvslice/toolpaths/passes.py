@@ -13,7 +13,7 @@ from scipy.spatial import cKDTree
 
 from curvslice.executors import query_threads
 from curvslice.geodesic import edge_keys
-from curvslice.toolpaths.constants import (BEAD_MIN, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
+from curvslice.toolpaths.constants import (BEAD_MIN, BEAD_RANGE, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
                                            DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, OFF_LAYER, OPEN_GAP, RIDGE_FLOOR,
                                            RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
 from curvslice.toolpaths.resampling import resample
@@ -28,7 +28,12 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
     ``2·d`` there (the largest ``d`` within half a width) its local width, the bead it needs (clamped to
     ``[BEAD_MIN, 2·THIN_REGION]`` widths; :func:`fit_beads` sets the final one). A ridge is the longest of the shortest paths over mesh
     edges weighted by ``length / d²`` (cheap along the ridge); branches it leaves open (vertices
-    more than a quarter width beyond half a bead of it) get their own ridges, up to ``BRANCH_ROUNDS`` rounds. Returns the faces of the other regions and the passes.
+    more than a quarter width beyond half a bead of it) get their own ridges, up to ``BRANCH_ROUNDS`` rounds,
+    but a ridge lying beside the region's passes, within reach of their widest bead (every point of it, plus
+    its own half-width ``d``, within ``BEAD_RANGE[1] / 2`` widths of them), is where the region widens, not a
+    branch: the beads there widen over it (:func:`fit_beads`) and it gets no pass of its own (an unseen bowl
+    shell at 0.6 mm, layer 40: four arcs of its inner skin, each widening to 0.9 w at 45°, got a second pass
+    3.3 w long beside the first, 17 % overlap). Returns the faces of the other regions and the passes.
     """
     f = np.asarray(faces, np.int64)
     n = len(vertices)
@@ -57,6 +62,7 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
     for c in thin_label:
         todo = np.nonzero(label[thin_v] == c)[0]
         mine = len(passes)
+        widened: list[np.ndarray] = []  # ridges where the region widens beside its passes: (points, bead) rows
         for _ in range(BRANCH_ROUNDS):
             if len(todo) < 3:
                 break
@@ -76,12 +82,19 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
                                                            output_type="coo_matrix")
                 half = dist[ridge].copy()  # the ridge of d near each point: an edge path runs beside it
                 np.maximum.at(half, near.row, dist[thin_v[members[near.col]]])
+                bead = np.clip(2.0 * half, BEAD_MIN * width, 2.0 * THIN_REGION * width)
+                if len(passes) > mine:
+                    beside = cKDTree(np.vstack([resample(q, DENSE_STEP * width) for q in passes[mine:]])).query(pts)[0]
+                    if (beside + dist[ridge]).max() <= 0.5 * BEAD_RANGE[1] * width:
+                        widened.append(np.c_[pts, bead])
+                        continue
                 passes.append(pts)
-                widths.append(np.clip(2.0 * half, BEAD_MIN * width, 2.0 * THIN_REGION * width))
+                widths.append(bead)
             if len(passes) == mine:
                 break
             done.append(c)
-            dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(passes[mine:], widths[mine:])])
+            dense = np.vstack([resample(np.c_[p, b], DENSE_STEP * width) for p, b in zip(passes[mine:], widths[mine:])]
+                              + [resample(x, DENSE_STEP * width) for x in widened])
             gap, nearest = cKDTree(dense[:, :3]).query(vertices[thin_v[todo]])
             todo = todo[gap > 0.5 * dense[nearest, 3] + BRANCH_MARGIN * width]
     keep = ~np.isin(label[f[:, 0]], done)
