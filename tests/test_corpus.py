@@ -55,6 +55,12 @@ KNOWN_FAILURES = {
     "homer": {"toolpaths/overlap": "5.8 % (layer 18)"},
     # fails on main d403461 too (measured with its code on PYTHONPATH, ends6): the nested dot of layer 2
     "cheburashka": {"toolpaths/overlap": "5.0 % (layer 2)"},
+    # added on 2026-11-28 (thirteenth session) with six other shapes nothing was tuned on (gear, two bodies, plate,
+    # T-bridge, torus knot, wedge: they pass), failing on their first run. The tower's convex-front layers are steep
+    # cones alternating with small flat caps (5.0-5.1 % at 1.0 and 1.5 mm, 8.6 % at 0.6); the bowl's layer 2 is
+    # borderline (a bowl tessellated by manifold3d's sphere instead of an icosphere passes at 1.0 and 1.5 mm).
+    "tower": {"toolpaths/overlap": "5.1 % (layer 19)"},
+    "bowl": {"toolpaths/overlap": "5.0 % (layer 2)"},
     # (Added on 2026-11-27, tenth session, and gone on 2026-11-28: the vase (wall 1.6 mm, thinner than the 1.9 mm
     # path) once its curved layers climbing the wall stopped being walked round both sides (f3de079) and its two
     # empty layers, 0.5 voxels of material in 4 pieces of 0.12 grazing its outer skin, were judged piece by piece;
@@ -146,6 +152,43 @@ def procedural_solid(name: str) -> trimesh.Trimesh:
 
         mesh = mf.Manifold.extrude(mf.CrossSection.square([14, 14], True), 30, 20, 90).to_mesh()
         return trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts))
+    if name == "gear":  # 14 teeth 3.5 mm deep round a 10 mm bore, 8 mm thick: many thin convex tips
+        import shapely.geometry as sg
+
+        angle = np.linspace(0, 2 * np.pi, 56, endpoint=False)
+        radius = np.where((np.arange(56) // 2) % 2 == 0, 20.0, 16.5)
+        outline = sg.Polygon(np.c_[radius * np.cos(angle), radius * np.sin(angle)]).difference(sg.Point(0, 0).buffer(5, 64))
+        return trimesh.creation.extrude_polygon(outline, 8.0)
+    if name == "two-bodies":  # a cube and a cylinder 9 mm apart: two parts in one file
+        cylinder = _cylinder(6, 25, 0)
+        cylinder.apply_translation([12, 0, 0])
+        return trimesh.util.concatenate([_box([15, 15, 15], [-12, 0, 7.5]), cylinder])
+    if name == "plate":  # 50 x 40 x 2 mm: thinner than two voxels at 1.5 mm, its top layer extracted lower
+        return _box([50, 40, 2], [0, 0, 1])
+    if name == "tower":  # a 6 mm square tower 50 mm tall on an 18 mm foot 3 mm high
+        return _boolean(_box([6, 6, 50], [0, 0, 25]), _cylinder(9, 3, 0), "union")
+    if name == "bowl":  # the lower half of a spherical shell (radius 20, wall 3 mm), standing on its bottom
+        shell = _boolean(trimesh.creation.icosphere(subdivisions=5, radius=20),
+                         trimesh.creation.icosphere(subdivisions=5, radius=17), "difference")
+        return _resting(_boolean(shell, _box([60, 60, 30], [0, 0, -15]), "intersection"))
+    if name == "t-bridge":  # two 6 mm pillars 24 mm apart carrying a 42 mm beam: a flat overhang between them
+        pillars = _boolean(_box([6, 10, 20], [-15, 0, 10]), _box([6, 10, 20], [15, 0, 10]), "union")
+        return _boolean(pillars, _box([42, 10, 5], [0, 0, 22.5]), "union")
+    if name == "knot":  # a (2, 3) torus knot of 6.4 mm tube: it overhangs itself three times
+        import manifold3d as mf
+
+        u = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+        centre = np.c_[(14 + 5 * np.cos(3 * u)) * np.cos(2 * u), (14 + 5 * np.cos(3 * u)) * np.sin(2 * u), 5 * np.sin(3 * u)]
+        balls = [mf.Manifold.sphere(3.2, 24).translate(tuple(c)) for c in centre]
+        tube = [mf.Manifold.batch_hull([a, b]) for a, b in zip(balls, balls[1:] + balls[:1])]
+        mesh = mf.Manifold.batch_boolean(tube, mf.OpType.Add).to_mesh()
+        return _resting(trimesh.Trimesh(np.asarray(mesh.vert_properties)[:, :3], np.asarray(mesh.tri_verts)))
+    if name == "wedge":  # a 37 deg ramp up to a 10 mm flat top, with a vertical back (lying on its 15 mm side)
+        import shapely.geometry as sg
+
+        wedge = trimesh.creation.extrude_polygon(sg.Polygon([(0, 0), (40, 0), (40, 23), (30, 23)]), 15)
+        wedge.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, [1, 0, 0]))
+        return _resting(wedge)
     raise ValueError(name)
 
 
@@ -163,7 +206,8 @@ def _resting(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
 
 
 SOLIDS = ["thin-walls", "sharp-tips", "arch", "hole", "needle", "overhang-l", "inverted-cone", "hollow-box", "torus",
-          "sphere", "capsule", "mushroom", "tilted-cylinder", "vase", "cup", "dome", "twist"]
+          "sphere", "capsule", "mushroom", "tilted-cylinder", "vase", "cup", "dome", "twist", "gear", "two-bodies",
+          "plate", "tower", "bowl", "t-bridge", "knot", "wedge"]
 SHARED = ["kitten", "bunny", "fertility", "rocker-arm", "fandisk", "cheburashka", "cow", "homer"]
 
 
