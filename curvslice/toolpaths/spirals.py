@@ -18,7 +18,7 @@ from scipy.spatial import ConvexHull, cKDTree
 from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, CUT_SHARE, CUT_STEP, DENSE_STEP, DOT_RING, FIRST_LEVEL,
                                            OPEN_GAP, SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS, THIN_LOOP)
 from curvslice.toolpaths.resampling import resample
-from curvslice.toolpaths.rings import Ring, fitting_centre_line, lone_thin_loop, loop_centre_line, thin_rise
+from curvslice.toolpaths.rings import Ring, fitting_centre_line, lone_thin_loop, thin_rise
 
 
 # ----------------------------------------------------------------------------- ring geometry
@@ -377,7 +377,7 @@ class _Builder:
             # thick, overlapped the centre line's: 5.9 % overlap; one chord: 0 %, coverage 95.1 %)
             if rings[0].round and rings[0].length >= DOT_RING * self.w:
                 return _dot_chord(rings[0], self.w, anchor, self.edge, chords=1)
-            return loop_centre_line(rings[0].points)
+            return self._centre_line(chain[0])  # (cached: _encloses computed it)
         arcs: list[np.ndarray] = []
         n = len(rings)
         order = list(range(0, n, 2)) + list(range(n - 1 if n % 2 == 0 else n - 2, 0, -2))
