@@ -28,47 +28,14 @@ from curvslice.verify import verify_outdir
 SOLID_VOXEL = 1.5
 SHARED_VOXEL = 2.5
 
-#: case -> the checks it fails, measured at the voxel above on main 8ff9dc5 (issue 18's tool-path rules are
-#: being fixed; "layers" are the failing layers), re-measured after the seam trim (beads.trim_seams: sharp-tips
-#: layer 12, fertility layer 30 and homer layers 3, 4, 6 now pass overlap). The hole and the cow passed on
-#: 8ff9dc5 and left this list; cheburashka (overlap 5.7 %, layer 25) left it when spirals were no longer cut at
-#: a ring's corner (cd9f20c). The kitten passes under the ``seam`` start rule, not yet under the default ``chain``.
-#: The arch left it when a lone dot's pass ran along its blob (spirals._dot_chord): its layer 10 had
-#: flipped between 4.1 and 5.8 % overlap as its vertices moved by 4e-16 mm (a chord to the farther of
-#: two mirror points), now 0 %. The kitten left it when pass ends stopped where their caps meet the bead ahead
-#: (beads.trim_ends) and a lone dot's pass became its blob's centre line (ends6). Re-measured on tp7 (sibling
-#: splices within a width): rocker-arm's layer 23 passes now, its layer 18 (a C-shaped annulus 2.5 w broad,
-#: one thin ring with an inner peak) does not; homer's layers 16 and 18 are 5 and 3 rings a few widths across
-#: whose cuts (2-3 w) take up to half of a ring. Cheburashka's layer 2 (its nested dot) reads 5.0 % on tp8 (5.1 %
-#: before): it passed with tp8's rules until fill_slivers clipped a sample's disc at the layer's edge. Re-measured on
-#: tp9: the hollow box left when a hole whose bridge carries a ring stayed open (plan._ringed_bridges: its layer 18
-#: 9.9 -> 1.5 %), the inverted cone when a root chain of three turning at a dot walked its middle ring from the other
-#: side of the cut (layer 8 6.5 -> 3.4 %); homer's layer 18 is such a chain too (11.5 -> 5.5 %), its layer 16 reads
-#: 5.06 %; sharp-tips 5.8 %, rocker-arm 6.2 % and cheburashka 5.0 % are unchanged. The torus (overlap 5.5 %,
-#: layer 4) had failed coverage instead since 088fc63 (80.9 %, layers 4-5: a chain stopped at its crest's thin
-#: band left the rings past it to a gap pass), unseen under a strict xfail; it left the list when the chain's
-#: last ring hosted them (spirals._past_thin_band). Homer's layer 18 reads 5.8 % on 5c90b4d. Rocker-arm left on
-#: 2026-11-28 when a dot in a thin outermost loop stopped keeping the loop walked round both sides (its layer 18:
-#: 5.9 -> 4.2 %; a bulge the centre pass misses is a gap pass's).
-KNOWN_FAILURES = {
-    "sharp-tips": {"toolpaths/overlap": "5.8 % (layer 4)"},
-    "homer": {"toolpaths/overlap": "5.8 % (layer 18)"},
-    # fails on main d403461 too (measured with its code on PYTHONPATH, ends6): the nested dot of layer 2
-    "cheburashka": {"toolpaths/overlap": "5.0 % (layer 2)"},
-    # added on 2026-11-28 (thirteenth session) with six other shapes nothing was tuned on (gear, two bodies, plate,
-    # T-bridge, torus knot, wedge: they pass), failing on their first run. The tower's convex-front layers are steep
-    # cones alternating with small flat caps (5.0-5.1 % at 1.0 and 1.5 mm, 8.6 % at 0.6); the bowl's layer 2 is
-    # borderline (a bowl tessellated by manifold3d's sphere instead of an icosphere passes at 1.0 and 1.5 mm).
-    "tower": {"toolpaths/overlap": "5.1 % (layer 19)"},
-    "bowl": {"toolpaths/overlap": "5.0 % (layer 2)"},
-    # (Added on 2026-11-27, tenth session, and gone on 2026-11-28: the vase (wall 1.6 mm, thinner than the 1.9 mm
-    # path) once its curved layers climbing the wall stopped being walked round both sides (f3de079) and its two
-    # empty layers, 0.5 voxels of material in 4 pieces of 0.12 grazing its outer skin, were judged piece by piece;
-    # the dome (its inside overhangs all round) when its layer 7 (4 pieces of 0.27 voxels) was judged the same
-    # way and no gap pass ran over a bridged hole any more (its layer 12: a pass across the hole, 8.5 %).
-    # A thin-walled cup, fixed: 11 % overlap at 1 mm until a thin leaf loop stopped hosting its siblings; a
-    # twisted prism passes.)
-}
+#: case -> the checks it fails at the voxel above (``{"toolpaths/overlap": "5.8 % (layer 4)"}``), while a cause is
+#: being fixed. Empty since 2026-11-28 (fourteenth session): the last five (sharp-tips 5.8 % overlap on layer 4,
+#: homer 5.8 % on 18, cheburashka 5.0 % on 2, tower 5.1 % on 19, bowl 5.0 % on 2) passed once fitted beads stopped
+#: at the bisector with the pass beside them (beads._bisectors; overlap by the report's own measure 5.9, 5.9, 5.1,
+#: 5.5, 5.2 % -> 5.2, 4.7, 3.4, 3.5, 4.3 %). Earlier entries went as their causes were fixed: the seam trim, the
+#: end trim, a lone dot's centre line, sibling splices, ringed bridges, a chain's last ring hosting the rings past
+#: a thin band, a dot in a thin outermost loop, empty layers judged piece by piece (git log -- tests/test_corpus.py).
+KNOWN_FAILURES: dict[str, dict[str, str]] = {}
 
 
 def _box(extents, centre) -> trimesh.Trimesh:

@@ -358,6 +358,22 @@ def test_fit_beads_tiles_unevenly_spaced_passes():
     assert min(b.min() for b in floored) >= 0.9 * width - 1e-12
 
 
+def test_fitted_beads_stop_at_the_bisector_between_passes():
+    """The same uneven plate: the fit's estimate of a strip's edge (its farthest samples, widened for the
+    lattice's shortfall and smoothed along the pass) never carries a bead past the mid-line to its
+    neighbour, which bounds that strip exactly; without the bisector the beads overran it by 0.015 w."""
+    width = 1.0
+    mesh = polygon_mesh(sg.box(0, 0, 20, 11.2), 0.3)
+    ys = 0.5 + np.cumsum(np.r_[0.0, np.tile([0.8, 1.2], 5)])
+    passes = [np.c_[np.linspace(0.5, 19.5, 60), np.full(60, y), np.zeros(60)] for y in ys]
+    fitted, beads = fit_beads(mesh, passes, width)
+    bounds = np.r_[-np.inf, 0.5 * (ys[1:] + ys[:-1]), np.inf]
+    for k, (p, b) in enumerate(zip(fitted, beads)):
+        middle = (p[:, 0] > 2) & (p[:, 0] < 18)
+        assert np.all(p[middle, 1] + 0.5 * b[middle] <= bounds[k + 1] + 1e-9)
+        assert np.all(p[middle, 1] - 0.5 * b[middle] >= bounds[k] - 1e-9)
+
+
 def test_resample_with_value_weight_keeps_the_bead_profile():
     """A 10 mm pass whose bead widens from 1.0 to 1.5 over its last 0.5 mm: at a 1 mm step the
     plain re-sampling interpolates the cap away; weighting the width change keeps it."""
@@ -552,7 +568,9 @@ def test_fit_beads_lays_the_floor_excess_over_the_layer_edge():
     pos = np.vstack(fitted)
     ids = np.repeat(np.arange(2), [len(p) for p in fitted])
     coverage, overlap = layer_cover(mesh, pos, ids, width, seed=1, bead=np.concatenate(beads))
-    assert coverage >= 0.97 and overlap <= 0.02
+    # what stays open is the strip's four end corners beside the round caps (~2.5 % of the strip; measured
+    # 97.2 % before the beads stopped at the bisector, 97.0 % since: the lower pass moves 0.003 w further out)
+    assert coverage >= 0.965 and overlap <= 0.02
 
 
 def test_needed_pieces_lets_a_refitted_neighbour_take_over():
