@@ -464,8 +464,8 @@ def _bisectors(pts: np.ndarray, side: np.ndarray, owner: np.ndarray, extent: np.
 
 
 #: Pass points :func:`_bisectors` looks among for another pass near the end of a strip: the nearest is the other
-#: pass's, or inside a bend its own pass's with the other's next (three or eight find the same caps on the
-#: kitten and the corpus' failing layers, and cost more).
+#: pass's, or inside a bend its own pass's with the other's next (three or eight gave the same coverage and
+#: overlap on the kitten 2.5 mm and the five corpus cases the cap was for, at more cost).
 _BISECTOR_NEIGHBOURS = 2
 
 
