@@ -720,7 +720,8 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
     red, theta0 = redundancy(robot, cell, positions, motion.normals, q0)
     tilt = min(np.radians(settings.max_tilt_deg), cell.max_axis_deviation)
     z0 = np.c_[theta0, np.zeros((len(q0), 2))] if tilt > 0 else theta0[:, None]
-    bound = np.where(motion.deviation > 0, 0.0, tilt)  # rows already deviated keep their axis
+    # a row's tilt and its deviation so far (the axis smoothing, a tilt for a collision) stay within the bound
+    bound = np.clip(cell.max_axis_deviation - motion.deviation, 0.0, tilt)
     branch = red.branch.copy()
     z, q = z0.copy(), q0.copy()
     safe_z, safe_q = z0.copy(), q0.copy()  # the last pose of each row known collision-free (the graph's first)

@@ -159,3 +159,44 @@ def slerp_subdivide(positions: np.ndarray, normals: np.ndarray, path_id: np.ndar
     pos = p[parent] + fraction[:, None] * (p[nxt] - p[parent])
     nrm = slerp(t[parent], t[nxt], fraction)
     return pos, nrm, parent, fraction
+
+
+#: :func:`smooth_along_paths` weighs neighbours up to this many σ of arc length away
+SMOOTHING_REACH = 3.0
+
+
+def smooth_along_paths(positions: np.ndarray, normals: np.ndarray, path_id: np.ndarray, sigma: float,
+                       max_angle: float) -> tuple[np.ndarray, np.ndarray]:
+    """Unit axes low-passed along each path: the Gaussian-weighted mean (σ = ``sigma`` mm of arc
+    length, up to :data:`SMOOTHING_REACH` σ, never across paths) of the unit ``normals``, each moved
+    at most ``max_angle`` from its own (slerp back towards it). The stronger counterpart of
+    :func:`low_pass` (§3.5.2) that a robot's tool axis wants: Eq. 3.3's closest points on a faceted
+    layer turn the axis by up to 10° from one sample to the next. Returns the axes (m, 3) and their
+    angles to ``normals`` (m,) rad."""
+    p = np.asarray(positions, np.float64)
+    t = _unit(np.asarray(normals, np.float64))
+    m = len(t)
+    if m < 2 or sigma <= 0 or max_angle <= 0:
+        return t, np.zeros(m)
+    pid = np.asarray(path_id)
+    step = np.r_[0.0, np.linalg.norm(np.diff(p, axis=0), axis=1)]
+    step[1:][pid[1:] != pid[:-1]] = 0.0
+    s = np.cumsum(step)  # arc length (it restarts nowhere, but pairs across paths are never weighed)
+    acc = t.copy()
+    reach = SMOOTHING_REACH * sigma
+    for k in range(1, m):
+        gap = s[k:] - s[:-k]
+        near = (gap <= reach) & (pid[k:] == pid[:-k])
+        if not near.any():
+            break
+        i = np.flatnonzero(near)
+        w = np.exp(-0.5 * (gap[i] / sigma) ** 2)[:, None]
+        acc[i] += w * t[i + k]  # (i is distinct within one k)
+        acc[i + k] += w * t[i]
+    axes = _unit(acc)
+    angle = _angles(axes, t)
+    far = angle > max_angle
+    if far.any():
+        axes[far] = slerp(t[far], axes[far], max_angle / angle[far])
+        angle[far] = _angles(axes[far], t[far])
+    return axes, angle

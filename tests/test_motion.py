@@ -32,7 +32,7 @@ from curvslice.ladder import (
     turned_frames,
 )
 from curvslice.motion import (BAND, BUMPS, Remembered, _band_fill, _band_windows, _fill, _Found, coarse_rungs, deviation_windows, plan_layer, plan_motion,
-                              reach_cone, step_times, unwind)
+                              ramp_steps, reach_cone, step_times, unwind)
 from curvslice.workcell import load_workcell, rotation_samples, waypoints_from_flange
 
 
@@ -319,6 +319,53 @@ def test_step_times_give_the_tool_time_to_turn():
     np.testing.assert_allclose(dt, [0.1, 0.1, 0.008])
     dt = step_times(c, 10.0, 0.008, t, 0.5)  # a 0.2 rad turn at 0.5 rad/s takes 0.4 s
     np.testing.assert_allclose(dt, [0.1, 0.4, 0.008])
+
+
+def test_ramped_steps_are_the_least_times_whose_neighbours_differ_by_the_ratio():
+    """ramp_steps against its definition, brute force: Δt'_i = max_j Δt_j / r^|i-j| over the steps
+    j of i's path run (a jump between paths is a run of its own), on random times and paths."""
+    def brute(dt, pid, r):
+        run = [int(pid[i]) if pid[i] == pid[i + 1] else -1 - i for i in range(len(dt))]
+        return np.array([max(dt[j] / r ** abs(i - j) for j in range(len(dt))
+                             if all(run[k] == run[i] for k in range(min(i, j), max(i, j) + 1)))
+                         for i in range(len(dt))])
+
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        m = int(rng.integers(2, 30))
+        dt, pid = rng.exponential(1.0, m - 1), np.sort(rng.integers(0, 4, m))
+        np.testing.assert_allclose(ramp_steps(dt, pid, 1.3), brute(dt, pid, 1.3), rtol=1e-12)
+    # one slow step (the tool turning) on a path of 0.1 s steps: the feed ramps down 1.3x a step and back up
+    out = ramp_steps(np.r_[np.full(5, 0.1), 1.0, np.full(5, 0.1)], np.zeros(12, int), 1.3)
+    np.testing.assert_allclose(out[5 - np.arange(6)], np.maximum(1.0 / 1.3 ** np.arange(6), 0.1))
+    np.testing.assert_allclose(out, out[::-1])
+
+
+def test_the_arm_follows_the_smoothed_axis_and_prints_a_jittery_pass_faster(ur5):
+    """A 30 mm pass on the platform whose axis jitters ±5° from sample to sample (0.5 mm apart):
+    with the workcell's axis smoothing the arm follows axes within half the deviation bound of the
+    tool-path's (recorded as the deviation, reproduced by FK) and turns the tool less, so the pass
+    takes far less time than the arm turning the jitter at ω̄; with the smoothing off the axes
+    are the tool-path's."""
+    robot, cell = ur5
+    n = 61
+    tilt = np.radians(20.0 + 5.0 * (-1.0) ** np.arange(n))
+    tp = dict(positions=np.c_[np.linspace(-15, 15, n), np.zeros(n), np.full(n, 5.0)],
+              normals=np.c_[np.sin(tilt), np.zeros(n), np.cos(tilt)], path=np.zeros(n, int), layer=np.ones(n, int),
+              feed=np.full(n, 600.0), extrusion=np.r_[0.0, np.full(n - 1, 0.05)])
+    rows = np.arange(n)
+    smooth = plan_layer(robot, cell, tp, rows)
+    plain = plan_layer(robot, dataclasses.replace(cell, axis_smoothing=0.0), tp, rows)
+    assert len(smooth.index) == len(plain.index) == n
+    np.testing.assert_allclose(plain.normals, tp["normals"], atol=1e-12)
+    assert np.allclose(plain.deviation, 0.0)
+    realized = np.arccos(np.clip(np.einsum("ij,ij->i", smooth.normals, tp["normals"]), -1, 1))
+    np.testing.assert_allclose(smooth.deviation, realized, atol=1e-9)
+    assert 0 < realized.max() <= cell.max_axis_deviation / 2 + 1e-9
+    tip = np.linalg.inv(fk(robot, smooth.q) @ cell.platform_mount) @ cell.nozzle  # the nozzle in the model frame
+    np.testing.assert_allclose(tip[:, :3, 2], smooth.normals, atol=1e-6)
+    np.testing.assert_allclose(tip[:, :3, 3], tp["positions"], atol=1e-6)
+    assert smooth.t[-1] < 0.5 * plain.t[-1]  # 10° turns at ω̄ = 30°/s set the plain pass's pace
 
 
 def test_circular_joints_of_the_shipped_robots():

@@ -6,7 +6,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import Delaunay
 
-from curvslice.orientation import accumulation_directions, closest_points, limit_tilt, low_pass, slerp, slerp_subdivide
+from curvslice.orientation import (accumulation_directions, closest_points, limit_tilt, low_pass, slerp, slerp_subdivide,
+                                   smooth_along_paths)
 from curvslice.toolpaths import ToolpathSettings, plan_toolpaths
 
 
@@ -51,6 +52,31 @@ def test_low_pass_removes_jumps_and_keeps_smooth_runs():
     # no smoothing across a travel: two paths keep their own orientations
     two = np.r_[np.tile([0, 0, 1.0], (5, 1)), np.tile([1.0, 0, 0], (5, 1))]
     assert np.allclose(low_pass(two, np.r_[np.zeros(5), np.ones(5)]), two)
+
+
+def test_smoothing_along_paths_removes_jitter_keeps_turns_and_bounds_the_move():
+    """A straight pass, 0.5 mm samples, its axis turning steadily by 40° with ±4° of alternating
+    jitter (what Eq. 3.3 gives on a faceted layer): the Gaussian (σ = 1 mm) takes the jitter out
+    and keeps the steady turn inside the pass (a symmetric kernel passes a linear trend); no axis
+    moves beyond the bound, none across a travel, and the angles returned are the moves."""
+    n = 81
+    x = np.linspace(0.0, 40.0, n)
+    steady = np.linspace(0.0, np.radians(40), n)
+    jitter = np.radians(4.0) * (-1.0) ** np.arange(n)
+    axes = lambda a: np.c_[np.sin(a), np.zeros(len(a)), np.cos(a)]  # noqa: E731
+    pos = np.c_[x, np.zeros(n), np.zeros(n)]
+    out, moved = smooth_along_paths(pos, axes(steady + jitter), np.zeros(n, int), 1.0, np.radians(10))
+    inner = slice(8, n - 8)  # more than 3σ from the pass's ends
+    assert np.degrees(_angles(out, axes(steady))[inner]).max() < 0.5  # the jitter is gone, the turn kept
+    assert np.degrees(_angles(out[1:], out[:-1])).max() < 2.0  # was 8.5° between samples
+    np.testing.assert_allclose(moved, _angles(out, axes(steady + jitter)), atol=1e-12)
+    _, capped = smooth_along_paths(pos, axes(steady + jitter), np.zeros(n, int), 1.0, np.radians(2))
+    assert capped.max() <= np.radians(2) + 1e-12
+    # no smoothing across a travel: two paths keep their own (constant) axes
+    two = np.r_[np.tile([0, 0, 1.0], (5, 1)), np.tile([1.0, 0, 0], (5, 1))]
+    kept, zero = smooth_along_paths(np.c_[np.arange(10.0), np.zeros((10, 2))], two, np.r_[np.zeros(5), np.ones(5)],
+                                    1.0, np.radians(10))
+    assert np.allclose(kept, two) and np.allclose(zero, 0)
 
 
 def test_limit_tilt_bounds_the_angle_to_the_layer_normal():
