@@ -5,6 +5,8 @@ against the closed-form time-optimal duration, and the verifier failing the unsm
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -277,3 +279,30 @@ def test_a_jump_between_pieces_becomes_a_ruckig_move(dome):
     assert report["before"]["total_squared_jerk"] == trajectory_stage(robot, cell, tp, graph, "graph")[1]["layers"][0]["before"]["total_squared_jerk"]
     acc, jerk = _local_derivatives(out.q, out.t, out.segment)
     assert (np.abs(jerk) <= limits.jerk * (1 + 1e-9)).all() and (np.abs(acc) <= limits.acceleration * (1 + 1e-9)).all()
+
+
+def test_the_tilt_stays_within_what_the_axis_smoothing_leaves_of_the_bound():
+    """A pass whose tool-path axis jitters ±6° (the smoothing moves every axis): the jerk stage's tilt comes on
+    top of the smoothing's deviation, and every final axis stays within the workcell's bound of the
+    tool-path's own (realized by FK), also with a tight bound (2°: 1° of smoothing, 1° left for the tilt). The
+    smoothed rows still tilt (they kept their axis while the smoothing counted as a deviation of its own)."""
+    robot = load_robot("ur5")
+    n = 61
+    tilt = np.radians(20.0 + 6.0 * (-1.0) ** np.arange(n))
+    nor = np.c_[np.sin(tilt), np.zeros(n), np.cos(tilt)]
+    tp = dict(positions=np.c_[np.linspace(-15, 15, n), np.zeros(n), np.full(n, 5.0)], normals=nor,
+              path=np.zeros(n, np.int32), layer=np.ones(n, np.int32), feed=np.full(n, 600.0),
+              extrusion=np.r_[0.0, np.full(n - 1, 0.05)], thickness=np.full(n, 0.8))
+    for bound in (20.0, 2.0):
+        cell = dataclasses.replace(load_workcell("ur5"), max_axis_deviation=np.radians(bound))
+        graph = plan_print(robot, cell, tp)
+        out, _ = trajectory_stage(robot, cell, tp, graph, "jerk")
+        realized = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", out.normals, nor[out.index]), -1, 1)))
+        smoothed = np.degrees(graph.deviation)
+        tilted = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", out.normals, graph.normals), -1, 1)))
+        assert len(out.index) == n and smoothed.max() >= min(bound / 2, 4.0) - 1e-6  # the smoothing moved the axes
+        assert tilted.max() > 0.05  # and the jerk stage tilted them further
+        assert realized.max() <= bound + 1e-6 and (out.deviation >= np.radians(realized) - 1e-9).all()
+        T = np.linalg.inv(fk_reference(robot, out.q) @ cell.platform_mount) @ cell.nozzle
+        np.testing.assert_allclose(T[:, :3, 2], out.normals, atol=1e-6)
+        np.testing.assert_allclose(T[:, :3, 3], tp["positions"][out.index], atol=1e-3)
