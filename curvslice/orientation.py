@@ -179,6 +179,7 @@ def smooth_along_paths(positions: np.ndarray, normals: np.ndarray, path_id: np.n
     if m < 2 or sigma <= 0 or max_angle <= 0:
         return t, np.zeros(m)
     pid = np.asarray(path_id)
+    pid = np.cumsum(np.r_[0, pid[1:] != pid[:-1]])  # runs: a path id met again later is another path
     step = np.r_[0.0, np.linalg.norm(np.diff(p, axis=0), axis=1)]
     step[1:][pid[1:] != pid[:-1]] = 0.0
     s = np.cumsum(step)  # arc length (it restarts nowhere, but pairs across paths are never weighed)

@@ -77,6 +77,11 @@ def test_smoothing_along_paths_removes_jitter_keeps_turns_and_bounds_the_move():
     kept, zero = smooth_along_paths(np.c_[np.arange(10.0), np.zeros((10, 2))], two, np.r_[np.zeros(5), np.ones(5)],
                                     1.0, np.radians(10))
     assert np.allclose(kept, two) and np.allclose(zero, 0)
+    # nor across another path between two runs of one path id
+    three = np.r_[np.tile([0, 0, 1.0], (5, 1)), np.tile([1.0, 0, 0], (2, 1)), np.tile([0, 1.0, 0], (5, 1))]
+    kept, _ = smooth_along_paths(np.zeros((12, 3)), three, np.r_[np.zeros(5), np.ones(2), np.zeros(5)], 1.0,
+                                 np.radians(10))
+    assert np.allclose(kept, three)
 
 
 def test_limit_tilt_bounds_the_angle_to_the_layer_normal():
