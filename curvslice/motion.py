@@ -18,7 +18,7 @@ import numpy as np
 from curvslice.kinematics import Robot
 from curvslice.ladder import (TWO_PI, LadderPath, RungMemo, blocked_rungs, circular_joints, deviate_axes, held_frames,
                               hopeless_rungs, joint_steps, ladder, ladder_at, shortest_path)
-from curvslice.orientation import smooth_along_paths
+from curvslice.orientation import angles_between, smooth_along_paths
 from curvslice.workcell import Workcell, rotation_samples
 
 
@@ -688,9 +688,8 @@ def ramp_steps(dt: np.ndarray, path_id: np.ndarray, ratio: float = FEED_RAMP) ->
     if len(dt) < 2 or ratio <= 1:
         return dt
     pid = np.asarray(path_id)
-    step_path = np.cumsum(np.r_[True, pid[1:-1] != pid[:-2]])  # a step's path run (a jump is a run of its own)
-    step_path[np.r_[pid[1:] != pid[:-1]]] = -1
-    run = np.cumsum(np.r_[True, (step_path[1:] != step_path[:-1]) | (step_path[1:] < 0)])  # runs of steps on one path
+    inside = pid[1:] == pid[:-1]  # a step on one path; a jump between paths is a run of its own
+    run = np.cumsum(np.r_[True, ~inside[1:] | ~inside[:-1]])  # runs of steps on one path
     c = np.log(ratio)
     i = np.arange(len(dt), dtype=float)
     u = np.log(np.maximum(dt, 1e-300))
@@ -887,8 +886,7 @@ def plan_layer(
         p, checks = max(p, p_more), checks + asked
     motion = _motion(robot, cell, chosen, link, solutions, p, checks, dt, cost, None)
     axes = axes / np.linalg.norm(axes, axis=1, keepdims=True)
-    realized = np.arccos(np.clip(np.einsum("ij,ij->i", axes, planned / np.linalg.norm(planned, axis=1, keepdims=True)),
-                                 -1.0, 1.0))
+    realized = angles_between(axes, planned)
     done = motion.segment >= 0
     seg = motion.segment[done]
     local = np.cumsum(np.r_[True, seg[1:] != seg[:-1]]) - 1 if len(seg) else seg

@@ -82,7 +82,8 @@ def accumulation_directions(points: np.ndarray, closest: np.ndarray, fallback: n
     return np.where(n > 1e-9, t / np.where(n > 1e-9, n, 1.0), fallback)
 
 
-def _angles(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def angles_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Angles (rad) between the rows of ``a`` and ``b`` (any lengths; atan2, exact near 0 and π)."""
     return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
 
 
@@ -98,7 +99,7 @@ def low_pass(normals: np.ndarray, path_id: np.ndarray, max_angle: float = np.rad
     pid = np.asarray(path_id)
     same = pid[1:] == pid[:-1]
     for _ in range(iterations):
-        jump = same & (_angles(t[1:], t[:-1]) > max_angle)
+        jump = same & (angles_between(t[1:], t[:-1]) > max_angle)
         if not jump.any():
             break
         flag = np.zeros(len(t), bool)
@@ -117,7 +118,7 @@ def limit_tilt(normals: np.ndarray, surface_normals: np.ndarray, max_tilt: float
     the nozzle never points into the printed side of the working surface."""
     t = _unit(np.asarray(normals, np.float64))
     n = _unit(np.asarray(surface_normals, np.float64))
-    ang = _angles(t, n)
+    ang = angles_between(t, n)
     bad = ang > max_tilt
     if bad.any():
         side = t[bad] - np.einsum("ij,ij->i", t[bad], n[bad])[:, None] * n[bad]
@@ -130,7 +131,7 @@ def limit_tilt(normals: np.ndarray, surface_normals: np.ndarray, max_tilt: float
 
 def slerp(a: np.ndarray, b: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Spherical linear interpolation between unit vectors (rows), parameter ``u`` in [0, 1]."""
-    omega = _angles(a, b)[:, None]
+    omega = angles_between(a, b)[:, None]
     u = np.asarray(u, np.float64).reshape(-1, 1)
     small = omega < 1e-8
     s = np.where(small, 1.0, np.sin(omega))
@@ -149,7 +150,7 @@ def slerp_subdivide(positions: np.ndarray, normals: np.ndarray, path_id: np.ndar
     p = np.asarray(positions, np.float64)
     t = _unit(np.asarray(normals, np.float64))
     pid = np.asarray(path_id)
-    ang = np.r_[_angles(t[1:], t[:-1]), 0.0]
+    ang = np.r_[angles_between(t[1:], t[:-1]), 0.0]
     pieces = np.where(np.r_[pid[1:] == pid[:-1], False], np.ceil(ang / max_angle - 1e-9), 1).astype(np.int64)
     pieces = np.maximum(pieces, 1)
     parent = np.repeat(np.arange(len(p)), pieces)
@@ -195,9 +196,9 @@ def smooth_along_paths(positions: np.ndarray, normals: np.ndarray, path_id: np.n
         acc[i] += w * t[i + k]  # (i is distinct within one k)
         acc[i + k] += w * t[i]
     axes = _unit(acc)
-    angle = _angles(axes, t)
+    angle = angles_between(axes, t)
     far = angle > max_angle
     if far.any():
         axes[far] = slerp(t[far], axes[far], max_angle / angle[far])
-        angle[far] = _angles(axes[far], t[far])
+        angle[far] = angles_between(axes[far], t[far])
     return axes, angle
