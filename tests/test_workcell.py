@@ -232,3 +232,19 @@ def test_deviated_axes_are_recorded_and_bounded_in_the_files(tmp_path):
     spec["max_axis_deviation_deg"] = float(moved.max()) / 2  # a tighter bound than realized: caught
     (tmp_path / "workcell.json").write_text(json.dumps(spec))
     assert not {c.name: c for c in verify_robot.checks(tmp_path)}["axis deviation within bound"].passed
+
+
+def test_the_verifier_carries_the_layers_exactly_as_the_planner_did(tmp_path):
+    """The PLY files round vertices to float32 (µm on a part of 100 mm), which flips a grazing contact; the
+    robot checks read the exact saved arrays (layers.npz), the planner's own geometry."""
+    from curvslice.verify.robot import _layer_meshes
+    from curvslice.working_surfaces import write_layers
+
+    layer = trimesh.creation.icosphere(subdivisions=2, radius=37.123456789)
+    layer.vertices += [51.987654321, -43.21, 12.345]
+    write_layers(tmp_path, [layer])
+    ply = trimesh.load(tmp_path / "layers" / "layer_0001.ply", force="mesh")
+    assert np.abs(ply.vertices - layer.vertices).max() > 1e-7  # the PLY is not exact ...
+    carried = _layer_meshes(tmp_path)
+    assert len(carried) == 1 and np.array_equal(carried[0].vertices, layer.vertices)  # ... the verifier's layers are
+    assert np.array_equal(carried[0].faces, layer.faces)

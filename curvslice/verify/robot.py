@@ -23,6 +23,7 @@ from curvslice.kinematics import fk_reference, ik, load_robot
 from curvslice.ladder import tilted_axes
 from curvslice.verify import Check
 from curvslice.workcell import deposition_frames, rotation_samples, workcell_from_dict
+from curvslice.working_surfaces import load_layers
 
 STAGE = "robot"
 POSITION_TOL = 1e-3  # mm (1e-6 m)
@@ -34,6 +35,11 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def _layer_meshes(outdir: Path) -> list[trimesh.Trimesh]:
+    """The layers the planner carried: exactly as saved (``layers/layers.npz``), else the PLY files. The
+    PLY vertices differ by up to ~2 µm, which flips a grazing contact (fertility 0.8: the heater block
+    against the part at one row, free on the saved layers and on the planner's, in contact on the PLY)."""
+    if (outdir / "layers" / "layers.npz").exists():
+        return load_layers(outdir)
     return [trimesh.load(p, force="mesh") for p in sorted((outdir / "layers").glob("layer_*.ply"))]
 
 
