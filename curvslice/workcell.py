@@ -31,7 +31,7 @@ Workcell file (JSON; lengths in mm, angles in degrees, as a person edits it)::
       "rotations": 30,                # p of §3.5.3 / n of Eq. 4.3
       "max_axis_deviation_deg": 20.0, # a waypoint may tilt its tool axis this far (0 = never)
       "axis_deviation_step_deg": 2.5, # ... searched in steps of this size
-      "axis_smoothing_mm": 1.0        # σ of the robot's low-pass of the tool axis along a path (0 = none)
+      "axis_smoothing_mm": 2.5        # σ of the robot's low-pass of the tool axis along a path (0 = none)
     }
 
 Acceleration and jerk limits (Eq. 4.2, §4.3.2): neither Universal Robots (UR3/UR5/UR10 CB3 and
@@ -65,6 +65,11 @@ low-passed over σ = 1 mm, and the graph search slower. The robot therefore foll
 Gaussian-filtered along each path over arc length (σ = ``axis_smoothing_mm``), moved at most half of
 ``max_axis_deviation_deg`` from the tool-path's own (:func:`curvslice.orientation.smooth_along_paths`);
 like every deviation it is recorded in ``joints.csv`` and bounded by the verifier. 0 turns it off.
+σ = 2.5 mm (about two beads): a symmetric kernel keeps a steady turn of the surface's normal and removes
+the jitter (bunny 1.0: the 1 mm and 2.5 mm axes differ by 3.4° median). Measured on the whole bunny 1.0 and
+kitten 0.8 against σ = 1 mm (same tool-paths): total squared jerk after the jerk stage -40 % / -31 %,
+print time -6 % / -7 %, robot stage CPU -8 % / -4 %; on bunny layers 9-24, 60-67, 100-104, σ = 4 mm
+lowered J by 11 % more but the print took 4 % longer and the search more checks than at 2.5.
 
 A body is ``{"name": str, "type": "box", "size_mm": [sx, sy, sz], "xyz_mm": [...], "rpy_deg": [...]}``
 or ``{"name": str, "type": "cylinder" | "cone", "radius_mm": r, "length_mm": h, "xyz_mm": [...], "rpy_deg": [...]}``
@@ -122,7 +127,7 @@ class Workcell:
     rotations: int = 30
     max_axis_deviation: float = np.radians(20.0)  # rad; 0 = waypoints keep their planned axis
     axis_deviation_step: float = np.radians(2.5)  # rad
-    axis_smoothing: float = 1.0  # mm, σ of the tool axis's low-pass along a path; 0 = the tool-path's axis
+    axis_smoothing: float = 2.5  # mm, σ of the tool axis's low-pass along a path; 0 = the tool-path's axis
 
     def limits(self, robot: Robot) -> tuple[np.ndarray, np.ndarray]:
         """Joint limits (rad): the URDF's, narrowed by the workcell's own when given."""
@@ -255,7 +260,7 @@ def workcell_from_dict(spec: dict, source: str = "workcell") -> Workcell:
         rotations=int(spec.get("rotations", 30)),
         max_axis_deviation=float(np.radians(spec.get("max_axis_deviation_deg", 20.0))),
         axis_deviation_step=float(np.radians(spec.get("axis_deviation_step_deg", 2.5))),
-        axis_smoothing=float(spec.get("axis_smoothing_mm", 1.0)),
+        axis_smoothing=float(spec.get("axis_smoothing_mm", 2.5)),
     )
     if not 0 <= cell.max_axis_deviation < np.pi / 2:
         raise CurvsliceError(f"{source}: 'max_axis_deviation_deg' must be in [0, 90)")

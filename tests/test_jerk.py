@@ -183,6 +183,9 @@ def test_state_to_state_move_from_rest_is_the_rest_to_rest_one_and_a_moving_star
 
 def test_verify_fails_the_graph_path_and_passes_the_jerk_one(dome, tmp_path):
     cell, robot, pos, nor, motion = dome
+    # the dome's axes are exact (no facet jitter for the workcell's axis smoothing to remove): the arm follows
+    # them as the thesis plans, which the graph search turns into jerk far over j_max
+    cell = dataclasses.replace(cell, axis_smoothing=0.0)
     n = len(pos)
     tp = dict(positions=pos, normals=nor, layer=np.ones(n, np.int32), path=np.ones(n, np.int32),
               extrusion=np.r_[0.0, np.full(n - 1, 0.05)], thickness=np.full(n, 0.8), feed=np.full(n, 600.0))
@@ -294,7 +297,8 @@ def test_the_tilt_stays_within_what_the_axis_smoothing_leaves_of_the_bound():
               path=np.zeros(n, np.int32), layer=np.ones(n, np.int32), feed=np.full(n, 600.0),
               extrusion=np.r_[0.0, np.full(n - 1, 0.05)], thickness=np.full(n, 0.8))
     for bound in (20.0, 2.0):
-        cell = dataclasses.replace(load_workcell("ur5"), max_axis_deviation=np.radians(bound))
+        # σ = 1 mm (not the default 2.5, which takes nearly all of this jitter out) leaves the stage some to tilt
+        cell = dataclasses.replace(load_workcell("ur5"), max_axis_deviation=np.radians(bound), axis_smoothing=1.0)
         graph = plan_print(robot, cell, tp)
         out, _ = trajectory_stage(robot, cell, tp, graph, "jerk")
         realized = np.degrees(np.arccos(np.clip(np.einsum("ij,ij->i", out.normals, nor[out.index]), -1, 1)))
