@@ -506,11 +506,17 @@ def model_digest(model: str | Path | trimesh.Trimesh) -> str:
 
 
 def stage_keys(model: str | Path | trimesh.Trimesh, settings: Settings) -> dict[str, str]:
-    """Per stage, a hash of the model, the settings of this and every earlier stage, and the pipeline
-    version: a stage whose key is unchanged would compute the same result."""
+    """Per stage, a hash of the model, the settings of this and every earlier stage (the robot stage's:
+    with the workcell's content, so an edited workcell file is never reused), and the pipeline version:
+    a stage whose key is unchanged would compute the same result."""
     keys, previous = {}, f"{PIPELINE_VERSION}:{model_digest(model)}"
     for stage in STAGES:
-        text = json.dumps([previous, stage.name, settings.of_stage(stage.name)], sort_keys=True, default=str)
+        inputs = settings.of_stage(stage.name)
+        if stage.name == "robot" and settings.robot is not None:  # the workcell's content, not only its name
+            from curvslice.workcell import load_workcell, workcell_to_dict
+
+            inputs["workcell"] = workcell_to_dict(load_workcell(settings.robot))
+        text = json.dumps([previous, stage.name, inputs], sort_keys=True, default=str)
         previous = keys[stage.name] = hashlib.sha256(text.encode()).hexdigest()[:16]
     return keys
 

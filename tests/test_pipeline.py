@@ -91,6 +91,21 @@ def test_resume_reuses_unchanged_stages_and_matches_a_fresh_run(tmp_path: Path) 
     assert dataclasses.asdict(settings_of(first))["voxel"] == 3.0
 
 
+def test_the_robot_stage_key_follows_the_workcell_content(tmp_path: Path) -> None:
+    """Resuming after the workcell file was edited recomputes the robot stage (its key holds the
+    workcell's content, not only the file's name); the slicing stages keep theirs."""
+    from curvslice.workcell import load_workcell, workcell_to_dict
+
+    path = tmp_path / "cell.json"
+    spec = workcell_to_dict(load_workcell("ur5"))
+    path.write_text(json.dumps(spec))
+    before = stage_keys(TEE, curvslice.Settings(voxel=2.0, robot=str(path)))
+    path.write_text(json.dumps({**spec, "axis_smoothing_mm": 1.0}))
+    after = stage_keys(TEE, curvslice.Settings(voxel=2.0, robot=str(path)))
+    assert before["robot"] != after["robot"]
+    assert all(before[k] == after[k] for k in ("field", "layers", "toolpaths"))
+
+
 @pytest.mark.parametrize("option, value", [("--voxel", "inf"), ("--size", "inf"), ("--memory-limit", "nan"),
                                            ("--path-width", "0"), ("--rotations", "0"), ("--eps", "-1"),
                                            ("--voxel", "1e6"), ("--layer-height", "1e6"), ("--max-tilt", "95"),
