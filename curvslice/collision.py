@@ -345,17 +345,17 @@ class CollisionScene:
         # small piece's cost: 0.2-0.3 s on a curved layer's grid of 2M cells): the layer being planned and
         # those after it in the group only loosen the bound where the extruder's bodies are near them
         group = [m for m in layers[mid: mid + PART_SUB] if len(m.faces)]
-        for run, field in ((earlier[:cut], None), (earlier[cut:mid], None), (earlier[mid:], group)):
+        for run, field_layers in ((earlier[:cut], None), (earlier[cut:mid], None), (earlier[mid:], group)):
             run = [m for m in run if len(m.faces)]
             if not run:
                 continue
             key = tuple(id(m) for m in run)
             if key not in kept:
                 bounds = None
-                if field is not None and self.bounds is not None:
-                    field_key = ("field",) + tuple(id(m) for m in field)
+                if field_layers is not None and self.bounds is not None:
+                    field_key = ("field",) + tuple(id(m) for m in field_layers)
                     if field_key not in kept:
-                        kept[field_key] = self._field(trimesh.util.concatenate(field))
+                        kept[field_key] = self._field(trimesh.util.concatenate(field_layers))
                     bounds = kept[field_key]
                 kept[key] = self._piece(trimesh.util.concatenate(run), bounds)
             pieces.append(kept[key])
