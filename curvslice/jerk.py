@@ -53,6 +53,7 @@ from curvslice.derivatives import (combined_stats, derivative_operators, derivat
                                    segment_bounds, stencils)
 from curvslice.kinematics import Robot, fk, ik, joint_placements, rigid_inverse
 from curvslice.motion import PrintMotion
+from curvslice.orientation import angles_between
 from curvslice.time_scaling import Limits, rest_to_rest, retime_moves, time_scale
 from curvslice.workcell import Workcell, deposition_frames
 
@@ -782,7 +783,7 @@ def optimize_print(robot: Robot, cell: Workcell, positions: np.ndarray, motion,
                     z, q, s, it = _settle(red, z, q, t0, seg, limits, fewer, bound, free)
                     steps, iterations = steps + s, iterations + it
     normals = red.axis(z, np.arange(len(q)))
-    tilted = np.arccos(np.clip(np.einsum("ij,ij->i", normals, red.axes), -1.0, 1.0))
+    tilted = angles_between(normals, red.axes)
     filtered = time.perf_counter() - start
     t_scaled, rounds, left = time_scale(q, t0, seg, limits, settings)
     scaled_added = float((t_scaled[-1] - t_scaled[0]) - (t0[-1] - t0[0])) if len(t0) else 0.0
