@@ -21,6 +21,8 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from scipy.sparse.csgraph import connected_components
 
+from curvslice.vectors import row_norms
+
 
 def cotan_laplacian(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray]:
     """Cotangent Laplacian ``L`` (negative semi-definite, zero row sums) and lumped vertex mass."""
@@ -34,7 +36,7 @@ def cotan_laplacian(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr_mat
     W = sp.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     W = W + W.T
     L = W - sp.diags(np.asarray(W.sum(axis=1)).ravel())
-    area = 0.5 * np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
+    area = 0.5 * row_norms(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]))
     mass = np.bincount(f.ravel(), weights=np.repeat(area / 3.0, 3), minlength=n)
     return L.tocsr(), mass
 
@@ -45,7 +47,7 @@ def _corner_cotangents(v: np.ndarray, f: np.ndarray) -> np.ndarray:
     for c in range(3):
         a, b, o = v[f[:, (c + 1) % 3]], v[f[:, (c + 2) % 3]], v[f[:, c]]
         e1, e2 = a - o, b - o
-        cross = np.linalg.norm(np.cross(e1, e2), axis=1)
+        cross = row_norms(np.cross(e1, e2))
         dot = np.einsum("ij,ij->i", e1, e2)
         ok = cross > 1e-12 * np.maximum(np.einsum("ij,ij->i", e1, e1), 1e-300)
         out[ok, c] = dot[ok] / cross[ok]
@@ -72,7 +74,7 @@ def boundary_edges(faces: np.ndarray) -> np.ndarray:
 def _face_gradient(v: np.ndarray, f: np.ndarray, u: np.ndarray) -> np.ndarray:
     """Per-triangle gradient of the piecewise-linear function ``u``."""
     normal = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
-    double_area = np.linalg.norm(normal, axis=1)
+    double_area = row_norms(normal)
     unit = normal / np.maximum(double_area, 1e-300)[:, None]
     grad = np.zeros((len(f), 3))
     for c in range(3):
@@ -113,8 +115,8 @@ def boundary_distance(vertices: np.ndarray, faces: np.ndarray, *, time_factor: f
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     n = len(v)
     dist = np.full(n, np.nan)
-    doubled = np.linalg.norm(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]), axis=1)
-    scale = np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() if len(f) else 1.0
+    doubled = row_norms(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]))
+    scale = row_norms(v[f[:, 1]] - v[f[:, 0]]).mean() if len(f) else 1.0
     f = f[doubled > 1e-10 * scale * scale]  # zero-area triangles carry no metric (vertices only there: NaN)
     bedges = boundary_edges(f)
     if len(f) == 0 or len(bedges) == 0:
@@ -133,10 +135,10 @@ def boundary_distance(vertices: np.ndarray, faces: np.ndarray, *, time_factor: f
     inner = ~is_b
 
     L, mass = cotan_laplacian(vk, fk)
-    h = np.linalg.norm(vk[fk[:, [1, 2, 0]]] - vk[fk], axis=2).mean()
+    h = row_norms(vk[fk[:, [1, 2, 0]]] - vk[fk]).mean()
     t = time_factor * h * h
     A = (sp.diags(mass) - t * L).tocsc()
-    length = np.linalg.norm(vk[new_id[bedges[:, 0]]] - vk[new_id[bedges[:, 1]]], axis=1)
+    length = row_norms(vk[new_id[bedges[:, 0]]] - vk[new_id[bedges[:, 1]]])
     source = 0.5 * np.bincount(new_id[bedges].ravel(), weights=np.repeat(length, 2), minlength=len(vk))
 
     u_neumann = _factor(A).solve(source) if boundary != "dirichlet" else None
@@ -149,7 +151,7 @@ def boundary_distance(vertices: np.ndarray, faces: np.ndarray, *, time_factor: f
         u = u_dirichlet if u_neumann is None else 0.5 * (u_neumann + u_dirichlet)
 
     grad = _face_gradient(vk, fk, u)
-    norm = np.linalg.norm(grad, axis=1, keepdims=True)
+    norm = row_norms(grad)[..., None]
     X = -grad / np.where(norm > 0, norm, 1.0)
     div = _divergence(vk, fk, _corner_cotangents(vk, fk), X)
     phi = np.zeros(len(vk))

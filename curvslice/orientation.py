@@ -17,6 +17,7 @@ from scipy.spatial import cKDTree
 from trimesh.triangles import closest_point as _closest_on_triangles
 
 from curvslice.executors import query_threads
+from curvslice.vectors import row_norms
 
 
 def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | None = None,
@@ -40,12 +41,12 @@ def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | No
     rows = np.arange(len(pts))
     first = _closest_on_triangles(tri[idx[:, 0]], pts)
     dist = np.full((len(pts), k), np.inf)
-    dist[:, 0] = np.linalg.norm(first - pts, axis=1)
+    dist[:, 0] = row_norms(first - pts)
     # (a margin far above rounding: a candidate is skipped only when it is surely farther)
     row, col = np.nonzero(centre[:, 1:] - reach[idx[:, 1:]] <= dist[:, :1] + _SURELY_FARTHER)
     col += 1
     other = _closest_on_triangles(tri[idx[row, col]], pts[row])
-    dist[row, col] = np.linalg.norm(other - pts[row], axis=1)
+    dist[row, col] = row_norms(other - pts[row])
     best = np.argmin(dist, axis=1)
     out = first.copy()
     won = best[row] == col
@@ -61,7 +62,7 @@ _SURELY_FARTHER = 1e-9
 def triangle_reach(triangles: np.ndarray, tree: cKDTree) -> np.ndarray:
     """Each triangle's farthest corner from its point in ``tree`` (its centroid): no point of the
     triangle lies farther from it (:func:`closest_points`)."""
-    return np.linalg.norm(np.asarray(triangles, np.float64).reshape(-1, 3, 3) - tree.data[:, None, :], axis=2).max(axis=1)
+    return row_norms(np.asarray(triangles, np.float64).reshape(-1, 3, 3) - tree.data[:, None, :]).max(axis=1)
 
 
 def surface_normals(mesh: trimesh.Trimesh, points: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -78,17 +79,17 @@ def surface_normals(mesh: trimesh.Trimesh, points: np.ndarray, faces: np.ndarray
 def accumulation_directions(points: np.ndarray, closest: np.ndarray, fallback: np.ndarray) -> np.ndarray:
     """Unit ``t_q = c_q q`` (Eq. 3.3 and below); ``fallback`` where ``q`` touches ``c_q``."""
     t = np.asarray(points, np.float64) - closest
-    n = np.linalg.norm(t, axis=1, keepdims=True)
+    n = row_norms(t)[..., None]
     return np.where(n > 1e-9, t / np.where(n > 1e-9, n, 1.0), fallback)
 
 
 def angles_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Angles (rad) between the rows of ``a`` and ``b`` (any lengths; atan2, exact near 0 and π)."""
-    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+    return np.arctan2(row_norms(np.cross(a, b)), np.einsum("ij,ij->i", a, b))
 
 
 def _unit(x: np.ndarray) -> np.ndarray:
-    return x / np.maximum(np.linalg.norm(x, axis=1, keepdims=True), 1e-300)
+    return x / np.maximum(row_norms(x)[..., None], 1e-300)
 
 
 def low_pass(normals: np.ndarray, path_id: np.ndarray, max_angle: float = np.radians(10.0),
@@ -122,7 +123,7 @@ def limit_tilt(normals: np.ndarray, surface_normals: np.ndarray, max_tilt: float
     bad = ang > max_tilt
     if bad.any():
         side = t[bad] - np.einsum("ij,ij->i", t[bad], n[bad])[:, None] * n[bad]
-        norm = np.linalg.norm(side, axis=1, keepdims=True)
+        norm = row_norms(side)[..., None]
         any_perp = np.cross(n[bad], np.where(np.abs(n[bad][:, :1]) < 0.9, [[1.0, 0, 0]], [[0, 1.0, 0]]))
         side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-300), _unit(any_perp))
         t[bad] = np.cos(max_tilt) * n[bad] + np.sin(max_tilt) * side
@@ -181,7 +182,7 @@ def smooth_along_paths(positions: np.ndarray, normals: np.ndarray, path_id: np.n
         return t, np.zeros(m)
     pid = np.asarray(path_id)
     pid = np.cumsum(np.r_[0, pid[1:] != pid[:-1]])  # runs: a path id met again later is another path
-    step = np.r_[0.0, np.linalg.norm(np.diff(p, axis=0), axis=1)]
+    step = np.r_[0.0, row_norms(np.diff(p, axis=0))]
     step[1:][pid[1:] != pid[:-1]] = 0.0
     s = np.cumsum(step)  # arc length (it restarts nowhere, but pairs across paths are never weighed)
     acc = t.copy()

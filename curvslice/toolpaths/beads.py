@@ -17,6 +17,7 @@ from curvslice.toolpaths.constants import (AHEAD_ANGLE, BEAD_RANGE, END_DEPTH, F
 from curvslice.toolpaths.passes import gap_passes, split_off_layer
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
+from curvslice.vectors import row_norms
 
 
 def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, passes: list[np.ndarray],
@@ -91,7 +92,7 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     them by a shift of at most half a width, stays within the widest bead (``BEAD_RANGE``) --
     the caller checks the refit (:func:`_faults`). Shortest first."""
     keep = list(range(len(pieces)))
-    length = [float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in pieces]
+    length = [float(row_norms(np.diff(p, axis=0)).sum()) for p in pieces]
     short = [k for k in sorted(keep, key=lambda i: length[i]) if length[k] < REDUNDANT_LENGTH * width]
     if not short or len(pieces) < 2 or len(samples) == 0:
         return keep
@@ -266,8 +267,9 @@ def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np
     # (a sample of a point left where it was is not lost: the same distance is not both within and past its bead)
     lost = np.zeros(len(x), bool)
     at = np.nonzero(np.any(on != pts, axis=1)[j])[0]
-    lost[at] = ((np.linalg.norm(x[at] - pts[j[at]], axis=1) <= 0.5 * bead[j[at]])
-                & (np.linalg.norm(x[at] - on[j[at]], axis=1) > 0.5 * bead[j[at]]))
+    xa, ja = x[at], j[at]
+    radius = 0.5 * bead[ja]
+    lost[at] = (row_norms(xa - pts[ja]) <= radius) & (row_norms(xa - on[ja]) > radius)
     pieces = np.split(on, stop)
     return pieces, fill_slivers(x[lost], pieces, beads, width, (OPEN_GAP - 0.5) * width)
 
@@ -368,7 +370,7 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
         return widths
     pts, half = np.vstack(pieces), 0.5 * np.concatenate(widths)
     label = piece_labels(pieces)
-    key = np.concatenate([np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))] for p in pieces])
+    key = np.concatenate([np.r_[0.0, np.cumsum(row_norms(np.diff(p, axis=0)))] for p in pieces])
     widest = 0.5 * BEAD_RANGE[1] * width
     tree = cKDTree(pts)
     # the radius of the surface a lattice sample stands for (its FIT_SAMPLE area as a disc): past the
@@ -497,7 +499,7 @@ def surface_samples(surface: trimesh.Trimesh, width: float) -> tuple[np.ndarray,
     edges = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
     if len(edges):
         a, b = surface.vertices[surface.edges[edges, 0]], surface.vertices[surface.edges[edges, 1]]
-        k = np.maximum(np.ceil(np.linalg.norm(b - a, axis=1) / (FIT_STEP * width)), 1).astype(np.int64)
+        k = np.maximum(np.ceil(row_norms(b - a) / (FIT_STEP * width)), 1).astype(np.int64)
         e = run_labels(k)
         u = run_offsets(k) / k[e]
         points.append(a[e] + u[:, None] * (b[e] - a[e]))
@@ -523,13 +525,13 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     lo, hi = start[owner], stop[owner]
     i = np.arange(n)
     tan = pts[np.minimum(i + 1, hi - 1)] - pts[np.maximum(i - 1, lo)]
-    tan /= np.maximum(np.linalg.norm(tan, axis=1, keepdims=True), 1e-300)
+    tan /= np.maximum(row_norms(tan)[..., None], 1e-300)
     first, last = i == lo, i == hi - 1
 
     normal = np.stack([np.bincount(j, weights=xn[:, c], minlength=n) for c in range(3)], axis=1)
     normal = np.stack([_window(normal[:, c], lo, hi, 2 * FIT_HALF, "mean") for c in range(3)], axis=1)
     side = np.cross(normal, tan)
-    norm = np.linalg.norm(side, axis=1, keepdims=True)
+    norm = row_norms(side)[..., None]
     side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-300), 0.0)
 
     off = x - pts[j]
@@ -537,7 +539,7 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     # distance off the pass in 3D (the chord across a curved strip, as the bead must reach),
     # on the side the layer's tangent plane puts it
     left = np.einsum("ij,ij->i", off, side[j]) >= 0
-    lateral = np.linalg.norm(off - along[:, None] * tan[j], axis=1) * np.where(left, 1.0, -1.0)
+    lateral = row_norms(off - along[:, None] * tan[j]) * np.where(left, 1.0, -1.0)
     by_point = np.argsort(j, kind="stable")  # (one sort for the three group maxima)
     extent = np.stack([_group_max(j, lateral, n, by_point[left[by_point]]), _group_max(j, -lateral, n, by_point[~left[by_point]])])
     owned = np.stack([np.bincount(j[left], minlength=n), np.bincount(j[~left], minlength=n)]).astype(np.float64)
@@ -588,7 +590,7 @@ def trim_seams(pieces: list[np.ndarray], widths: list[np.ndarray], width: float)
         out_w.append(b)
         if len(p) < 3:
             continue
-        cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))]
+        cum = np.r_[0.0, np.cumsum(row_norms(np.diff(p, axis=0)))]
         total, gap = cum[-1], p[0] - p[-1]
         # each end's heading over half a width of its walk (its last segment alone may be a fit's hook)
         reach = min(0.5 * width, 0.5 * total)
@@ -600,7 +602,7 @@ def trim_seams(pieces: list[np.ndarray], widths: list[np.ndarray], width: float)
         s = np.stack([trims, total - trims], axis=1)
         ends = np.stack([np.interp(s, cum, p[:, i]) for i in range(3)], axis=-1)
         bead = np.interp(s, cum, b)
-        apart = np.linalg.norm(ends[:, 1] - ends[:, 0], axis=1) >= SEAM_CHORD * bead.mean(axis=1)
+        apart = row_norms(ends[:, 1] - ends[:, 0]) >= SEAM_CHORD * bead.mean(axis=1)
         if apart[0] or not apart.any():
             continue
         k = int(np.argmax(apart))
@@ -626,7 +628,7 @@ either end: a loop's seam is :func:`trim_seams`'):
         return pieces, widths
     pts, bead = np.vstack(pieces), np.concatenate(widths)
     label = piece_labels(pieces)
-    cums = [np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(p, axis=0), axis=1))] for p in pieces]
+    cums = [np.r_[0.0, np.cumsum(row_norms(np.diff(p, axis=0)))] for p in pieces]
     key = np.concatenate(cums)
     alive = np.ones(len(pts), bool)
     tree = cKDTree(pts)
@@ -649,7 +651,7 @@ either end: a loop's seam is :func:`trim_seams`'):
             along = SAME_PASS_BEADS * np.maximum(width, bead[near])
             near = near[alive[near] & ((label[near] != i) | ((np.abs(key[near] - span[tail]) > along)
                                                              & (np.abs(key[near] - span[1 - tail]) > along)))
-                        & (ahead @ out >= np.cos(AHEAD_ANGLE) * np.linalg.norm(ahead, axis=1))]
+                        & (ahead @ out >= np.cos(AHEAD_ANGLE) * row_norms(ahead))]
             if len(near) == 0:
                 continue
             trims = np.linspace(0.0, min(float(b[-tail]), total / 3.0), 21)
@@ -657,7 +659,7 @@ either end: a loop's seam is :func:`trim_seams`'):
             ends = np.column_stack([np.interp(s, cum, p[:, c]) for c in range(3)])
             end_bead = np.interp(s, cum, b)
             depth = (0.5 * (end_bead[:, None] + bead[near][None])
-                     - np.linalg.norm(ends[:, None] - pts[near][None], axis=2)).max(axis=1)
+                     - row_norms(ends[:, None] - pts[near][None])).max(axis=1)
             clear = np.nonzero(depth <= END_DEPTH * end_bead)[0]
             k = int(clear[0]) if len(clear) else int(np.argmin(depth))
             span[tail] = float(s[k])

@@ -17,6 +17,7 @@ from curvslice.toolpaths.constants import (BEAD_MIN, BEAD_RANGE, BRANCH_MARGIN, 
                                            DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, OFF_LAYER, OPEN_GAP, RIDGE_FLOOR,
                                            RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
 from curvslice.toolpaths.resampling import resample
+from curvslice.vectors import row_norms
 
 
 def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
@@ -53,7 +54,7 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
     thin_v = np.nonzero(np.isin(label, thin_label))[0]  # the thin regions' own graph (small)
     e = np.searchsorted(thin_v, edges[np.isin(label[edges[:, 0]], thin_label)])
     mid = np.maximum(0.5 * (dist[thin_v[e[:, 0]]] + dist[thin_v[e[:, 1]]]), RIDGE_FLOOR * width)
-    length = np.linalg.norm(vertices[thin_v[e[:, 0]]] - vertices[thin_v[e[:, 1]]], axis=1)
+    length = row_norms(vertices[thin_v[e[:, 0]]] - vertices[thin_v[e[:, 1]]])
     weighted = sp.coo_matrix((length / mid**2, (e[:, 0], e[:, 1])), shape=(len(thin_v),) * 2).tocsr()
     weighted = weighted + weighted.T
     metric = sp.coo_matrix((length, (e[:, 0], e[:, 1])), shape=(len(thin_v),) * 2).tocsr()
@@ -74,7 +75,7 @@ def thin_passes(vertices: np.ndarray, faces: np.ndarray, dist: np.ndarray,
                     continue
                 ridge = thin_v[members[_longest_path(metric[members][:, members], weighted[members][:, members])]]
                 pts = vertices[ridge].copy()
-                if len(passes) == mine and np.linalg.norm(np.diff(pts, axis=0), axis=1).sum() < WALL_LENGTH * width:
+                if len(passes) == mine and row_norms(np.diff(pts, axis=0)).sum() < WALL_LENGTH * width:
                     break  # a blob, not a wall: the contours print it
                 if len(pts) > 2:
                     pts[1:-1] = (pts[:-2] + pts[1:-1] + pts[2:]) / 3.0  # the edge path's zigzag smoothed
@@ -152,7 +153,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     edges = np.c_[code // len(v), code % len(v)]
     if len(edges) == 0:
         return []
-    length = np.linalg.norm(v[edges[:, 0]] - v[edges[:, 1]], axis=1)
+    length = row_norms(v[edges[:, 0]] - v[edges[:, 1]])
     graph = sp.coo_matrix((length, (edges[:, 0], edges[:, 1])), shape=(len(v), len(v))).tocsr()
     graph = graph + graph.T
     n_comp, label = connected_components(graph, directed=False)
@@ -163,7 +164,7 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         chain = members[_longest_path(graph[members][:, members])]
         # the open patch is its sliver less the hairline along the beads: the sliver is GAP_PASS_LENGTH
         # long when the patch is that less the hairline (the spikes of cheburashka 0.8 layer 45)
-        if np.linalg.norm(np.diff(v[chain], axis=0), axis=1).sum() + (OPEN_GAP - 0.5) * width >= GAP_PASS_LENGTH * width:
+        if row_norms(np.diff(v[chain], axis=0)).sum() + (OPEN_GAP - 0.5) * width >= GAP_PASS_LENGTH * width:
             passes.append(v[chain])
     return passes
 
@@ -184,7 +185,7 @@ def join_touching(passes: list[np.ndarray], width: float) -> list[np.ndarray]:
     if len(pairs) == 0:
         return passes
     pairs = pairs[pairs[:, 0] // 2 != pairs[:, 1] // 2]
-    pairs = pairs[np.argsort(np.linalg.norm(ends[pairs[:, 0]] - ends[pairs[:, 1]], axis=1), kind="stable")]
+    pairs = pairs[np.argsort(row_norms(ends[pairs[:, 0]] - ends[pairs[:, 1]]), kind="stable")]
     root = list(range(len(passes)))
 
     def find(i: int) -> int:
@@ -227,7 +228,7 @@ def split_off_layer(passes: list[np.ndarray], off: Callable[[np.ndarray], np.nda
     outside the part (kitten 1 mm, layer 64: a 4 mm link across a fold 0.75 mm outside the solid, its whole
     bead beyond it). There the piece ends and a travel move takes its place. Only segments longer than
     ``OFF_LAYER`` widths are tested (a shorter one cannot leave)."""
-    long = [np.flatnonzero(np.linalg.norm(np.diff(p, axis=0), axis=1) > OFF_LAYER * width) for p in passes]
+    long = [np.flatnonzero(row_norms(np.diff(p, axis=0)) > OFF_LAYER * width) for p in passes]
     u = np.array([0.25, 0.5, 0.75])
     probe = [(p[k, None] + u[None, :, None] * (p[k + 1] - p[k])[:, None]).reshape(-1, 3) for p, k in zip(passes, long)]
     if not sum(len(q) for q in probe):
@@ -258,7 +259,7 @@ def uncross(piece: np.ndarray, width: float, rounds: int = UNCROSS_ROUNDS) -> np
         if len(p) < 4:
             return order
         a, b = p[:-1], p[1:]
-        length = np.linalg.norm(b - a, axis=1)
+        length = row_norms(b - a)
         mid = 0.5 * (a + b)
         tree = cKDTree(mid)
         typical = float(np.percentile(length, CROSS_PERCENTILE)) + 1e-9
@@ -279,7 +280,7 @@ def uncross(piece: np.ndarray, width: float, rounds: int = UNCROSS_ROUNDS) -> np
         with np.errstate(all="ignore"):
             s = np.clip((uv * vw - vv * uw) / den, 0, 1)
             t = np.clip((uu * vw - uv * uw) / den, 0, 1)
-        gap = np.linalg.norm(w0 + s[:, None] * u - t[:, None] * v, axis=1)
+        gap = row_norms(w0 + s[:, None] * u - t[:, None] * v)
         sin = np.sqrt(np.maximum(den, 0)) / np.maximum(np.sqrt(uu * vv), 1e-300)
         hit = (gap < CROSS_GAP * width) & (s > 0.0) & (s < 1.0) & (t > 0.0) & (t < 1.0) & (sin > np.sin(CROSS_ANGLE))
         if not hit.any():

@@ -27,6 +27,7 @@ from curvslice.toolpaths.resampling import bead_room, extrusion_amounts, resampl
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands, split_pinches
 from curvslice.toolpaths.spirals import connected_spirals
 from curvslice.toolpaths.stacked import piece_labels
+from curvslice.vectors import row_norms
 
 
 @dataclass
@@ -86,7 +87,7 @@ def bridge_small_holes(vertices: np.ndarray, faces: np.ndarray, max_perimeter: f
     graph = sp.coo_matrix((np.ones(len(border)), (border[:, 0], border[:, 1])), shape=(n, n))
     _, loop = connected_components(graph, directed=False)
     loop_of_edge = loop[border[:, 0]]
-    length = np.linalg.norm(vertices[border[:, 0]] - vertices[border[:, 1]], axis=1)
+    length = row_norms(vertices[border[:, 0]] - vertices[border[:, 1]])
     perimeter = np.bincount(loop_of_edge, weights=length)
     # the longest loop of each connected piece is its outer boundary, never a hole
     mesh_graph = sp.coo_matrix((np.ones(len(directed)), (directed[:, 0], directed[:, 1])), shape=(n, n))
@@ -186,7 +187,7 @@ def _ringed_bridges(r: LayerRings, n_surface: int, width: float) -> list[int]:
     hole = np.nonzero(count > 0)[0][hole]
     rims = np.zeros(len(centres))
     for i, h in enumerate(hole):
-        rims[i] = np.linalg.norm(vertices[border[loop == h, 0]] - centres[i], axis=1).max()
+        rims[i] = row_norms(vertices[border[loop == h, 0]] - centres[i]).max()
     tree = cKDTree(centres)
     out: set[int] = set()
     for ring in r.rings:
@@ -204,7 +205,7 @@ def _layer_rings(surface: trimesh.Trimesh, width: float, min_bead: Callable[[np.
     """:func:`layer_rings` of a cleaned ``surface`` with the holes ``leave_open`` left open."""
     v, f, bridged = bridge_small_holes(surface.vertices, surface.faces, BRIDGE_HOLE * np.pi * width, leave_open)
     real = len(surface.faces)  # the fans come after the surface's own faces
-    if len(f) and np.linalg.norm(v[f[:, 1]] - v[f[:, 0]], axis=1).mean() > SUBDIVIDE_EDGE * width:
+    if len(f) and row_norms(v[f[:, 1]] - v[f[:, 0]]).mean() > SUBDIVIDE_EDGE * width:
         v, f = trimesh.remesh.subdivide(v, f)  # finer heat step (t = h²) and contours than the voxels
         real *= 4  # (face i becomes faces 4i .. 4i + 3)
     if len(f) == 0:
@@ -498,7 +499,7 @@ def _printed_end(piece: np.ndarray, reverse: bool) -> np.ndarray | None:
     when not certain."""
     end = piece[0] if reverse else piece[-1]
     others = piece[1:] if reverse else piece[:-1]
-    if len(others) and np.linalg.norm(others - end, axis=1).min() > _DISTINCT_END:
+    if len(others) and row_norms(others - end).min() > _DISTINCT_END:
         return np.array(end, np.float64)
     return None
 
@@ -529,11 +530,11 @@ def _pulled_beads(fitted: np.ndarray, printed: np.ndarray, normals: np.ndarray, 
     side), and only up to ``MAX_SHIFT`` widths (farther, the sample is a link's chord across a bend, as
     in :func:`~curvslice.toolpaths.beads._onto_layer`)."""
     off = fitted - printed
-    along = np.linalg.norm(off - np.einsum("ij,ij->i", off, normals)[:, None] * normals, axis=1)
+    along = row_norms(off - np.einsum("ij,ij->i", off, normals)[:, None] * normals)
     pulled = np.nonzero((along > 1e-9 * width) & (along <= MAX_SHIFT * width))[0]
     if not len(pulled):
         return bead
-    seg = np.r_[0.0, np.linalg.norm(np.diff(printed, axis=0), axis=1)]
+    seg = np.r_[0.0, row_norms(np.diff(printed, axis=0))]
     first = np.r_[True, pid[1:] != pid[:-1]]
     laid = np.where(first, 0.0, np.r_[bead[0], 0.5 * (bead[1:] + bead[:-1])])  # each segment at its ends' mean
     room = bead_room(printed, seg, first, laid, pulled, bead[pulled], None)
@@ -590,7 +591,7 @@ def _orient_layer(k: int, folded: _Folded, prepared: _Prepared, surfaces: list[t
         out["bead"] = bead[parent] + frac * (bead[nxt] - bead[parent])
         row["samples"] = len(pos)
         row["subdivided"] = int(len(pos) - len(q))
-        row["length_mm"] = round(float(sum(np.linalg.norm(np.diff(s[:, :3], axis=0), axis=1).sum() for s in samples)), 3)
+        row["length_mm"] = round(float(sum(row_norms(np.diff(s[:, :3], axis=0)).sum() for s in samples)), 3)
     return out, row, folded.seconds, perf_counter() - t1
 
 

@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 from curvslice.flow import filament_length
 from curvslice.toolpaths.constants import CORNER_ANGLE, SAME_PASS_BEADS
 from curvslice.toolpaths.stacked import run_labels, run_offsets
+from curvslice.vectors import row_norms
 
 
 def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0, turn_weight: float = 0.0) -> np.ndarray:
@@ -20,16 +21,16 @@ def resample(polyline: np.ndarray, step: float, value_weight: float = 0.0, turn_
     profile survives the linear interpolation between them. ``turn_weight`` adds that much length
     per radian the path turns (below the kept corners), so bends keep their samples."""
     p = np.asarray(polyline, np.float64)
-    seg = np.linalg.norm(np.diff(p[:, :3], axis=0), axis=1)
+    seg = row_norms(np.diff(p[:, :3], axis=0))
     p = p[np.concatenate([[True], seg > 1e-9])]  # (np.concatenate: np.r_ costs more than the rest at a few points)
     if len(p) < 2:
         return p[:1].copy()
     d = np.diff(p[:, :3], axis=0)
-    u = d / np.linalg.norm(d, axis=1, keepdims=True)
+    u = d / row_norms(d)[..., None]
     turn = np.arccos(np.clip(np.einsum("ij,ij->i", u[:-1], u[1:]), -1, 1))
     keep = np.concatenate([[0], np.nonzero(turn > CORNER_ANGLE)[0] + 1, [len(p) - 1]])
     bend = np.concatenate([[0.0], np.where(turn > CORNER_ANGLE, 0.0, turn), [0.0]])
-    cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.concatenate([d, value_weight * np.diff(p[:, 3:], axis=0)], axis=1), axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(row_norms(np.concatenate([d, value_weight * np.diff(p[:, 3:], axis=0)], axis=1))
                                            + turn_weight * 0.5 * (bend[:-1] + bend[1:]))])
     # every run between kept corners in n equal steps (the corners themselves are knots of cum)
     start, span = cum[keep[:-1]], cum[keep[1:]] - cum[keep[:-1]]
@@ -55,7 +56,7 @@ def extrusion_amounts(positions: np.ndarray, path_id: np.ndarray, thickness: np.
     beads of the other passes as the means lay them (another piece of its ``layer``, or the same one more
     than ``SAME_PASS_BEADS`` beads along it), as :func:`~curvslice.toolpaths.beads.fill_slivers` widens."""
     pos = np.asarray(positions, np.float64)
-    seg = np.r_[0.0, np.linalg.norm(np.diff(pos, axis=0), axis=1)]
+    seg = np.r_[0.0, row_norms(np.diff(pos, axis=0))]
     h = np.r_[thickness[0], 0.5 * (thickness[1:] + thickness[:-1])]
     w = np.broadcast_to(np.asarray(width, np.float64), h.shape)
     first = np.r_[True, path_id[1:] != path_id[:-1]]
@@ -105,7 +106,7 @@ def bead_room(pos: np.ndarray, seg: np.ndarray, first: np.ndarray, laid: np.ndar
     u = np.clip(np.einsum("ij,ij->i", rel, abj) / np.maximum(length2[j], 1e-300), 0.0, 1.0)
     along = np.abs(arclen[d - 1] + (t0[j] + u * (t1[j] - t0[j])) * seg[d] - arclen[s])  # to the part's closest point
     other = (piece[d] != piece[s]) | (along > SAME_PASS_BEADS * laid[d])
-    gap = np.linalg.norm(rel[other] - u[other, None] * abj[other], axis=1) - 0.5 * laid[d[other]]
+    gap = row_norms(rel[other] - u[other, None] * abj[other]) - 0.5 * laid[d[other]]
     room = np.full(len(at), np.inf)
     np.minimum.at(room, i[other], gap)
     return 2.0 * np.maximum(room, 0.0)

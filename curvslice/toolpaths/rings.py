@@ -23,6 +23,7 @@ from curvslice.toolpaths.constants import (BEAD_MIN, BEAD_RANGE, CENTRE_BIN, DEN
                                            SLIVER_TOP, THIN_LOOP)
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import run_labels, run_offsets
+from curvslice.vectors import row_norms
 
 
 @dataclass
@@ -45,7 +46,7 @@ class Ring:
     @property
     def cumlen(self) -> np.ndarray:
         closed = np.vstack([self.points, self.points[:1]])
-        return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(closed, axis=0), axis=1))])
+        return np.concatenate([[0.0], np.cumsum(row_norms(np.diff(closed, axis=0)))])
 
     @property
     def breadth(self) -> float:
@@ -306,8 +307,8 @@ def loop_centre_line(points: np.ndarray) -> np.ndarray:
     """Centre line of a thin closed loop: its two sides between the loop's ends (the farthest
     pair of its points), paired by their share of arclength and averaged; curved loops keep their
     course (a main-axis projection would fold a U onto itself)."""
-    a = int(np.argmax(np.linalg.norm(points - points[0], axis=1)))
-    b = int(np.argmax(np.linalg.norm(points - points[a], axis=1)))
+    a = int(np.argmax(row_norms(points - points[0])))
+    b = int(np.argmax(row_norms(points - points[a])))
     b = (b - a) % len(points)
     if b < 1 or b >= len(points) - 1:
         return points[[0, a]] if a else points[:2]
@@ -388,8 +389,8 @@ def split_pinches(rings: list[Ring], width: float,
         for t in thin:
             p = t.points
             if t.length < 2.0 * DOT_RING * width:  # a tip: the centre line's end nearest to it reaches its far point
-                at_start = np.linalg.norm(p - line[0], axis=1).min() < np.linalg.norm(p - line[-1], axis=1).min()
-                tip = p[np.argmax(np.linalg.norm(p - (line[0] if at_start else line[-1]), axis=1))]
+                at_start = row_norms(p - line[0]).min() < row_norms(p - line[-1]).min()
+                tip = p[np.argmax(row_norms(p - (line[0] if at_start else line[-1])))]
                 line = np.vstack([tip, line]) if at_start else np.vstack([line, tip])
         lines.append(line)
         new = [Ring(ring.level, kept[0], ring.below, ring.above, ring.top, ring.floor)]
@@ -413,7 +414,7 @@ def _pinch(ring: Ring, width: float,
         return None
     q = resample(np.vstack([ring.points, ring.points[:1]]), DENSE_STEP * width)[:-1]
     n = len(q)
-    s = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(q, axis=0), axis=1))]
+    s = np.r_[0.0, np.cumsum(row_norms(np.diff(q, axis=0)))]
     total = s[-1] + np.linalg.norm(q[0] - q[-1])
     floor = np.maximum(min_bead(q) / width, BEAD_MIN) if min_bead is not None else np.full(n, BEAD_MIN)
     # the widest centre bead d + 1 w may leave a hairline either side
@@ -426,7 +427,7 @@ def _pinch(ring: Ring, width: float,
     i, j = np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]]
     along = np.abs(s[i] - s[j])
     along = np.minimum(along, total - along)
-    d = np.linalg.norm(q[i] - q[j], axis=1)
+    d = row_norms(q[i] - q[j])
     ok = (along > PINCH_ALONG * width) & (d < reach[i])
     if not ok.any():
         return None
@@ -463,7 +464,7 @@ def _paired_mean(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Mean of two polylines paired by their share of arclength (a centre line between two sides)."""
     shares = []
     for side in (a, b):
-        cum = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(side, axis=0), axis=1))]
+        cum = np.r_[0.0, np.cumsum(row_norms(np.diff(side, axis=0)))]
         shares.append(cum / max(cum[-1], 1e-300))
     t = np.unique(np.r_[shares[0], shares[1]])
     halves = [np.column_stack([np.interp(t, sh, side[:, c]) for c in range(3)]) for sh, side in zip(shares, (a, b))]

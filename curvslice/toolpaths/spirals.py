@@ -19,6 +19,7 @@ from curvslice.toolpaths.constants import (BEAD_RANGE, CORNER_ANGLE, CUT_RANGE, 
                                            OPEN_GAP, SPLICE_REACH, SPLICE_SHIFT, SPLICE_SHIFTS, THIN_LOOP)
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.rings import Ring, fitting_centre_line, lone_thin_loop, thin_rise
+from curvslice.vectors import row_norms
 
 
 # ----------------------------------------------------------------------------- ring geometry
@@ -87,7 +88,7 @@ def _closest_points(ring: Ring, cum: np.ndarray, points: np.ndarray) -> tuple[np
     a = ring.points
     ab = np.roll(a, -1, axis=0) - a
     t = np.clip(np.einsum("cij,ij->ci", points[:, None] - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-300), 0, 1)
-    dist = np.linalg.norm(a + t[..., None] * ab - points[:, None], axis=2)
+    dist = row_norms(a + t[..., None] * ab - points[:, None])
     i = np.argmin(dist, axis=1)
     ti = t[np.arange(len(points)), i]
     return cum[i] + ti * (cum[i + 1] - cum[i]), a[i] + ti[:, None] * ab[i]
@@ -100,12 +101,12 @@ def _turn_cos(ring: Ring, cum: np.ndarray, s: np.ndarray, width: float) -> np.nd
     at, ahead, behind = (np.column_stack([np.interp((s + d) % cum[-1], cum, closed[:, i]) for i in range(3)])
                          for d in (0.0, width, -width))
     u, v = at - behind, ahead - at
-    return np.einsum("ij,ij->i", u, v) / np.maximum(np.linalg.norm(u, axis=1) * np.linalg.norm(v, axis=1), 1e-300)
+    return np.einsum("ij,ij->i", u, v) / np.maximum(row_norms(u) * row_norms(v), 1e-300)
 
 
 def _dot_centre(ring: Ring) -> np.ndarray:
     """A dot's centre, where the links of a spiral reach it: its point nearest to its mean."""
-    return ring.points[np.argmin(np.linalg.norm(ring.points - ring.points.mean(axis=0), axis=1))]
+    return ring.points[np.argmin(row_norms(ring.points - ring.points.mean(axis=0)))]
 
 
 def _dot_chord(ring: Ring, width: float, anchor: np.ndarray, border: np.ndarray | None = None,
@@ -138,7 +139,7 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray, border: np.ndarray 
     flat = (ring.points - centre) @ plane.T
     hull = flat[ConvexHull(flat).vertices]
     edge = np.roll(hull, -1, axis=0) - hull
-    edge /= np.maximum(np.linalg.norm(edge, axis=1, keepdims=True), 1e-300)
+    edge /= np.maximum(row_norms(edge)[..., None], 1e-300)
     normal = np.c_[-edge[:, 1], edge[:, 0]]
     across = hull @ normal.T  # (hull point, direction)
     breadth = np.ptp(across, axis=0)
@@ -158,11 +159,11 @@ def _dot_chord(ring: Ring, width: float, anchor: np.ndarray, border: np.ndarray 
         radial = outline - outline.mean(axis=0)
         sides = np.roll(outline, -1, axis=0) - outline
         ways = np.vstack([sides, radial])
-        ways = ways[np.linalg.norm(ways, axis=1) > 1e-9 * width]
+        ways = ways[row_norms(ways) > 1e-9 * width]
         lines = [_centre_line(outline, way / np.linalg.norm(way), width, outward) for way in ways]
         # what the bead across the blob's least breadth (within the widest) reaches, short of the hairline:
         # all directions cover the blob at full reach, the corners the tighter reach leaves tell them apart
-        unit = sides / np.maximum(np.linalg.norm(sides, axis=1, keepdims=True), 1e-300)
+        unit = sides / np.maximum(row_norms(sides)[..., None], 1e-300)
         least = np.ptp(outline @ np.c_[-unit[:, 1], unit[:, 0]].T, axis=0).min()
         reach = 0.5 * min(BEAD_RANGE[1] * width, least) - (OPEN_GAP - 0.5) * width
         covered = [blob.intersection(shapely.LineString(line).buffer(reach)).area for line in lines]
@@ -445,7 +446,7 @@ class _Builder:
         sharp = self._cut_sharpness(chain, candidates)
         if not np.any(sharp <= 0):
             return candidates[int(np.argmin(sharp))]
-        return candidates[int(np.argmin(np.where(sharp <= 0, np.linalg.norm(candidates - anchor, axis=1), np.inf)))]
+        return candidates[int(np.argmin(np.where(sharp <= 0, row_norms(candidates - anchor), np.inf)))]
 
     def _cut_sharpness(self, chain: list[int], points: np.ndarray) -> np.ndarray:
         """For cut lines starting at ``points`` on the innermost ring of ``chain``: how much sharper
