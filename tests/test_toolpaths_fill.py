@@ -10,7 +10,7 @@ import pytest
 import shapely.geometry as sg
 import trimesh
 
-from curvslice.toolpaths.beads import fill_slivers, surface_samples
+from curvslice.toolpaths.beads import _nearest_per_group, _point_hash, _Projector, fill_slivers, surface_samples
 from curvslice.toolpaths.constants import BEAD_RANGE
 from curvslice.toolpaths.plan import layer_paths
 from curvslice.toolpaths.resampling import resample
@@ -135,3 +135,33 @@ def test_a_thin_strip_that_widens_gets_one_ridge_pass_not_a_second_beside_it():
         s = resample(np.c_[result.pieces[0], result.widths[0]], 0.25)
         coverage, overlap = layer_cover(mesh, s[:, :3], np.zeros(len(s), int), 1.0, seed=1, bead=s[:, 3])
         assert coverage >= 0.99 and overlap <= 0.01
+
+
+@pytest.mark.parametrize("n, ties", [(0, False), (1, False), (7, True), (5000, False), (5000, True)])
+def test_nearest_per_group_is_lexsorts_first_entry(n: int, ties: bool) -> None:
+    rng = np.random.default_rng(n)
+    code = rng.integers(0, max(n // 3, 1), n)
+    gap = rng.integers(0, 3, n).astype(float) if ties else rng.random(n)
+    ref = np.lexsort((gap, code))
+    ref = ref[np.r_[True, code[ref][1:] != code[ref][:-1]]] if n else ref
+    assert np.array_equal(_nearest_per_group(code, gap), ref)
+
+
+def test_projector_answers_repeated_and_colliding_points_as_asked_anew() -> None:
+    """The projector's memory (points looked up by a hash of their bits, matched exactly) gives every point
+    the answer it gets on its own, also for a point whose hash another point already holds."""
+    surface = trimesh.creation.icosphere(subdivisions=3, radius=5.0)
+    rng = np.random.default_rng(3)
+    pts = rng.standard_normal((300, 3)) * 4.0
+    fresh = _Projector(surface)
+    projector = _Projector(surface)
+    projector(pts[:200])
+    again = projector(np.vstack([pts[100:], pts[:50]]))
+    alone = fresh(np.vstack([pts[100:], pts[:50]]))
+    for a, b in zip(again, alone):
+        assert np.array_equal(a, b)
+    # a forced collision: the memory holds another point under the asked point's hash
+    projector.keys[:] = _point_hash(pts[:1])[0]
+    projector.keys.sort()
+    for a, b in zip(projector(pts[:5]), fresh(pts[:5])):
+        assert np.array_equal(a, b)

@@ -114,9 +114,7 @@ def needed_pieces(pieces: list[np.ndarray], widths: list[np.ndarray], width: flo
     hits = cKDTree(samples[near]).sparse_distance_matrix(cKDTree(pts), max(reach, widest), output_type="ndarray")
     hit_row, hit_col, hit_gap = hits["i"], hits["j"], hits["v"]
     # the nearest point of every piece within the widest bead of each sample
-    code = hit_row * len(pieces) + label[hit_col]
-    first = np.lexsort((hit_gap, code))
-    first = first[np.r_[True, code[first][1:] != code[first][:-1]]]
+    first = _nearest_per_group(hit_row * len(pieces) + label[hit_col], hit_gap)
     first = first[np.lexsort((hit_gap[first], hit_row[first]))]  # by sample, nearest piece first
     row, piece_of, gap_of, half_of = hit_row[first], label[hit_col[first]], hit_gap[first], half[hit_col[first]]
     inside = gap_of <= half_of
@@ -196,7 +194,9 @@ def _fit_owned(surface: trimesh.Trimesh, samples: tuple[np.ndarray, np.ndarray, 
 class _Projector:
     """Closest points on one layer (Eq. 3.3) for :func:`_onto_layer`, with what every call of a layer's
     fits shares: the centroid KD-tree and the triangles' reaches, the boundary edges, and the answers for
-    points already asked (a refit keeps most passes' points exactly as they were), by their bytes, sorted."""
+    points already asked (a refit keeps most passes' points exactly as they were), sorted by a hash of
+    their coordinates' bits and matched exactly (a point whose hash another one holds is computed anew:
+    each point's answer is its own, :func:`~curvslice.orientation.closest_points`)."""
 
     def __init__(self, surface: trimesh.Trimesh):
         self.tri = surface.triangles
@@ -205,31 +205,34 @@ class _Projector:
         self.edge = np.zeros((len(self.tri), 3), bool)  # edge (c, c+1) of each face on the boundary
         border = trimesh.grouping.group_rows(surface.edges_sorted, require_count=1)
         self.edge[border // 3, border % 3] = True
-        self.keys = np.zeros(0, _ROW)
+        self.keys, self.pts = np.zeros(0, np.uint64), np.zeros((0, 3))
         self.on, self.moved, self.face = np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64)
 
     def __call__(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         pts = np.ascontiguousarray(pts, np.float64).reshape(-1, 3)
-        keys = pts.view(_ROW).ravel()
-        ask = ~self._known(keys)
-        new, first = np.unique(keys[ask], return_index=True)
-        if len(new):
-            on, moved, face = closest_points(pts[ask][first], self.tri, self.tree, reach=self.reach)
-            order = np.argsort(np.concatenate([self.keys, new]))
-            self.keys = np.concatenate([self.keys, new])[order]
-            self.on, self.moved, self.face = (np.concatenate([self.on, on])[order], np.concatenate([self.moved, moved])[order],
-                                              np.concatenate([self.face, face])[order])
-        at = np.searchsorted(self.keys, keys)
-        return self.on[at], self.moved[at], self.face[at]
-
-    def _known(self, keys: np.ndarray) -> np.ndarray:
-        """Whether each of ``keys`` (points as :data:`_ROW`) was asked before."""
+        keys = _point_hash(pts)
         at = np.minimum(np.searchsorted(self.keys, keys), max(len(self.keys) - 1, 0))
-        return self.keys[at] == keys if len(self.keys) else np.zeros(len(keys), bool)
+        if len(self.keys):
+            known = (self.keys[at] == keys) & np.all(self.pts[at] == pts, axis=1)
+            on, moved, face = self.on[at], self.moved[at], self.face[at]
+        else:
+            known = np.zeros(len(pts), bool)
+            on, moved, face = np.zeros((len(pts), 3)), np.zeros(len(pts)), np.zeros(len(pts), np.int64)
+        ask = np.flatnonzero(~known)
+        if len(ask):
+            on[ask], moved[ask], face[ask] = closest_points(pts[ask], self.tri, self.tree, reach=self.reach)
+            order = np.argsort(np.concatenate([self.keys, keys[ask]]), kind="stable")
+            self.keys, self.pts = np.concatenate([self.keys, keys[ask]])[order], np.concatenate([self.pts, pts[ask]])[order]
+            self.on, self.moved, self.face = (np.concatenate([self.on, on[ask]])[order], np.concatenate([self.moved, moved[ask]])[order],
+                                              np.concatenate([self.face, face[ask]])[order])
+        return on, moved, face
 
 
-#: A point's three coordinates as one opaque value (:class:`_Projector`'s answers are looked up by their bytes).
-_ROW = np.dtype((np.void, 24))
+def _point_hash(pts: np.ndarray) -> np.ndarray:
+    """One uint64 per point of (n, 3) float64 ``pts``: its coordinates' bits mixed by odd multipliers (sorting
+    and searching these is several times faster than the points' 24 bytes)."""
+    bits = pts.view(np.uint64)  # (array arithmetic wraps modulo 2**64)
+    return bits[:, 0] * np.uint64(0x9E3779B97F4A7C15) ^ bits[:, 1] * np.uint64(0xC2B2AE3D27D4EB4F) ^ bits[:, 2] * np.uint64(0x165667B19E3779F9)
 
 
 def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np.ndarray],
@@ -272,6 +275,17 @@ def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np
     lost[at] = (row_norms(xa - pts[ja]) <= radius) & (row_norms(xa - on[ja]) > radius)
     pieces = np.split(on, stop)
     return pieces, fill_slivers(x[lost], pieces, beads, width, (OPEN_GAP - 0.5) * width)
+
+
+def _nearest_per_group(code: np.ndarray, gap: np.ndarray) -> np.ndarray:
+    """Per distinct ``code``, in rising code order, the index of its smallest ``gap`` (the first such index
+    on a tie): ``np.lexsort((gap, code))`` cut to each code's first entry, with one integer sort instead of two."""
+    order = np.argsort(code, kind="stable")
+    c, g = code[order], gap[order]
+    start = np.r_[True, c[1:] != c[:-1]] if len(c) else np.zeros(0, bool)
+    group = np.cumsum(start) - 1
+    lowest = np.flatnonzero(g == np.minimum.reduceat(g, np.flatnonzero(start))[group]) if len(c) else np.zeros(0, np.int64)
+    return order[lowest[np.r_[True, group[lowest][1:] != group[lowest][:-1]]]] if len(lowest) else lowest
 
 
 class _Owners:
@@ -534,13 +548,14 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     norm = row_norms(side)[..., None]
     side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-300), 0.0)
 
-    off = x - pts[j]
-    along = np.einsum("ij,ij->i", off, tan[j])
+    off, tan_j = x - pts[j], tan[j]
+    along = np.einsum("ij,ij->i", off, tan_j)
     # distance off the pass in 3D (the chord across a curved strip, as the bead must reach),
     # on the side the layer's tangent plane puts it
     left = np.einsum("ij,ij->i", off, side[j]) >= 0
-    lateral = row_norms(off - along[:, None] * tan[j]) * np.where(left, 1.0, -1.0)
-    by_point = np.argsort(j, kind="stable")  # (one sort for the three group maxima)
+    lateral = row_norms(off - along[:, None] * tan_j) * np.where(left, 1.0, -1.0)
+    # one sort for the three group maxima (as 16-bit keys where they fit: numpy's radix sort, the same order)
+    by_point = np.argsort(j.astype(np.uint16) if n <= 1 << 16 else j, kind="stable")
     extent = np.stack([_group_max(j, lateral, n, by_point[left[by_point]]), _group_max(j, -lateral, n, by_point[~left[by_point]])])
     owned = np.stack([np.bincount(j[left], minlength=n), np.bincount(j[~left], minlength=n)]).astype(np.float64)
     reach = _group_max(j, np.where(last[j], along, np.where(first[j], -along, 0.0)), n, by_point)  # ahead of an end

@@ -16,7 +16,7 @@ from scipy.spatial import cKDTree
 
 from curvslice import orientation as ori
 from curvslice.errors import CurvsliceError
-from curvslice.executors import Executor, InProcess
+from curvslice.executors import Executor, InProcess, query_threads
 from curvslice.exporters.gcode6 import write_gcode6
 from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import fill_slivers, layer_beads, nearest_below, surface_samples
@@ -428,7 +428,7 @@ class _Floor:
     tree: cKDTree | None
 
     def __call__(self, points: np.ndarray) -> np.ndarray:
-        return self.vertex_thickness[self.tree.query(points)[1]]
+        return self.vertex_thickness[self.tree.query(points, workers=query_threads(len(points)))[1]]
 
 
 @dataclass
