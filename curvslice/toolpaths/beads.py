@@ -281,11 +281,13 @@ def _nearest_per_group(code: np.ndarray, gap: np.ndarray) -> np.ndarray:
     """Per distinct ``code``, in rising code order, the index of its smallest ``gap`` (the first such index
     on a tie): ``np.lexsort((gap, code))`` cut to each code's first entry, with one integer sort instead of two."""
     order = np.argsort(code, kind="stable")
+    if not len(order):
+        return order
     c, g = code[order], gap[order]
-    start = np.r_[True, c[1:] != c[:-1]] if len(c) else np.zeros(0, bool)
+    start = np.r_[True, c[1:] != c[:-1]]
     group = np.cumsum(start) - 1
-    lowest = np.flatnonzero(g == np.minimum.reduceat(g, np.flatnonzero(start))[group]) if len(c) else np.zeros(0, np.int64)
-    return order[lowest[np.r_[True, group[lowest][1:] != group[lowest][:-1]]]] if len(lowest) else lowest
+    lowest = np.flatnonzero(g == np.minimum.reduceat(g, np.flatnonzero(start))[group])  # (every group has one)
+    return order[lowest[np.r_[True, group[lowest][1:] != group[lowest][:-1]]]]
 
 
 class _Owners:
