@@ -783,7 +783,7 @@ def test_small_lone_ring_seam_lies_on_its_flank_not_at_a_tip(axes, monkeypatch):
     ends = result.pieces[0][[0, -1], :2]
     assert np.abs(ends[:, 0]).max() < 0.5 * axes[0] and np.all(np.abs(ends[:, 1]) > 0.3)  # on a flank
     assert coverage >= 0.97 and overlap <= 0.03
-    monkeypatch.setattr("curvslice.toolpaths.spirals._seam", lambda ring, s, width: s)
+    monkeypatch.setattr("curvslice.toolpaths.spirals._seam", lambda ring, s, width, edge=None: s)
     _, (tip_coverage, tip_overlap) = measure()
     assert (1.0 - tip_coverage) + tip_overlap > (1.0 - coverage) + overlap + 0.03
 
