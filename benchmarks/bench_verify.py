@@ -290,13 +290,13 @@ def markdown(records: list[dict], header: dict[str, object]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def splice(results_md: Path, section: str) -> None:
-    """Replace the verify section of ``results_md`` (from its heading to the next ``## ``) or add it
-    before the list of what is not implemented; creates the file when absent."""
+def splice(results_md: Path, section: str, heading: str = SECTION) -> None:
+    """Replace the section under ``heading`` (default: the verify table's) of ``results_md`` (from its heading
+    to the next ``## ``) or add it before the list of what is not implemented; creates the file when absent."""
     text = results_md.read_text() if results_md.exists() else ""
-    start = text.find(SECTION)
+    start = text.find(heading)
     if start >= 0:
-        end = text.find("\n## ", start + len(SECTION))
+        end = text.find("\n## ", start + len(heading))
         text = text[:start] + section + ("\n" + text[end + 1:] if end >= 0 else "")
     else:
         anchor = text.find("## Not yet implemented")

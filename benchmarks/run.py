@@ -795,15 +795,10 @@ def execute(args) -> int:
     return 0
 
 
-def verify_table(models: tuple[str, ...] | None, scratch: str | None, quiet: bool, jobs: int = 1,
-                 reuse: bool = False) -> dict[str, object]:
-    """The verify table's runs (:mod:`benchmarks.bench_verify`), ``jobs`` at once in their own processes,
-    and what they were run on."""
-    import multiprocessing
+def source_commit() -> str:
+    """The commit the library was run from, for a results header: short hash, and whether curvslice/ has
+    uncommitted changes (else the commit that last changed it)."""
     import subprocess
-    from concurrent.futures import ProcessPoolExecutor
-
-    from benchmarks import bench_verify
 
     def git(*a: str) -> str:
         try:
@@ -816,7 +811,19 @@ def verify_table(models: tuple[str, ...] | None, scratch: str | None, quiet: boo
         commit += " with uncommitted changes to curvslice/"
     elif last := git("log", "-1", "--format=%h", "--", "curvslice"):
         commit += f" (curvslice/ last changed in {last})"
-    header = {"commit": commit, "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+    return commit
+
+
+def verify_table(models: tuple[str, ...] | None, scratch: str | None, quiet: bool, jobs: int = 1,
+                 reuse: bool = False) -> dict[str, object]:
+    """The verify table's runs (:mod:`benchmarks.bench_verify`), ``jobs`` at once in their own processes,
+    and what they were run on."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    from benchmarks import bench_verify
+
+    header = {"commit": source_commit(), "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
               "load": ", ".join(f"{x:.1f}" for x in os.getloadavg()),
               "command": "curvslice bench --verify-only" + (f" --models {' '.join(models)}" if models else ""),
               "jobs": jobs}

@@ -191,3 +191,23 @@ def test_verify_section_is_spliced_into_results_md(tmp_path):
     assert again.replace("commit xyz", "commit abc") == once
     assert [c.title for c in cases(("kitten",))] == ["kitten @0.8 mm", "kitten @1 mm", "kitten @1.6 mm", "kitten @2 mm",
                                                      "kitten @0.8 mm, path 0.6 w", "kitten @0.8 mm, path 1.5 w"]
+
+
+def test_corpus_section_counts_passes_per_voxel_and_sits_beside_the_verify_table(tmp_path):
+    from benchmarks.bench_corpus import SECTION, markdown
+    from benchmarks.bench_verify import SECTION as VERIFY, splice
+
+    runs = [{"solid": "cup", "voxel": 1.0, "failed": ["overlap: max 5.5% (layer 13)"], "seconds": 1.0},
+            {"solid": "arch", "voxel": 1.0, "failed": [], "seconds": 1.0},
+            {"solid": "arch", "voxel": 0.8, "failed": [], "seconds": 1.0}]
+    md = markdown(runs, {"command": "python -m benchmarks.bench_corpus", "commit": "abc", "date": "d", "load": "1",
+                         "load_end": "1", "jobs": "1"})
+    rows = [line for line in md.splitlines() if line.startswith("| 1 mm") or line.startswith("| 0.8 mm")]
+    assert rows == ["| 1 mm | 1 of 2 | cup: overlap: max 5.5% (layer 13) |", "| 0.8 mm | 1 of 1 | – |"]
+    target = tmp_path / "RESULTS.md"
+    target.write_text(f"# r\n\n{VERIFY}\n\nv\n\n## Not yet implemented\n\n- x\n")
+    splice(target, md, SECTION)
+    splice(target, md.replace("commit abc", "commit xyz"), SECTION)
+    text = target.read_text()
+    assert text.count(SECTION) == 1 and "commit xyz" in text and f"{VERIFY}\n\nv\n" in text
+    assert text.index(VERIFY) < text.index(SECTION) < text.index("## Not yet implemented")
