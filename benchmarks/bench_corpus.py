@@ -2,7 +2,7 @@
 (``tests/test_corpus.py``: thin walls, tips, overhangs, holes, a needle, a cup, a knot...) sliced to the
 tool-paths at voxel sizes finer than CI's 1.5 mm and re-checked by every ``curvslice verify`` check. CI keeps
 the corpus passing at 1.5 mm; this measures how well the rules hold where nobody tuned them: how many solids
-pass per voxel size, and every failed check of the others with its layers.
+pass per voxel size, and every failed check of the others with its figure (the worst layer).
 
 Run from the repository root: ``python -m benchmarks.bench_corpus [--voxels 1.0 0.8] [--jobs 2]``; it prints the
 table and writes its section of ``benchmarks/RESULTS.md`` (about 4 CPU minutes per voxel size at 1.0-0.8 mm).

@@ -270,6 +270,7 @@ class _Builder:
         self._edge: cKDTree | None = None  # their tree (:func:`_seam`), once asked
 
     def _edge_tree(self) -> cKDTree | None:
+        """The KD-tree of ``edge`` (built once per layer, when a lone ring's seam first asks; None without edge)."""
         if self._edge is None and self.edge is not None and len(self.edge):
             self._edge = cKDTree(self.edge)
         return self._edge
