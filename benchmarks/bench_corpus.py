@@ -11,6 +11,7 @@ table and writes its section of ``benchmarks/RESULTS.md`` (about 4 CPU minutes p
 from __future__ import annotations
 
 import argparse
+import functools
 import importlib.util
 import multiprocessing
 import os
@@ -23,8 +24,9 @@ REPO = Path(__file__).resolve().parent.parent
 SECTION = "## Corpus at finer voxels"
 
 
+@functools.cache
 def _corpus():
-    """``tests/test_corpus.py`` as a module (the solids are defined there, beside the CI test that uses them)."""
+    """``tests/test_corpus.py`` as a module (loaded once per process) (the solids are defined there, beside the CI test that uses them)."""
     spec = importlib.util.spec_from_file_location("corpus", REPO / "tests" / "test_corpus.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -9,6 +9,7 @@ splice has no room (then the child becomes its own piece, counted as a jump).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,13 +64,13 @@ def _tangent(ring: Ring, s: float, span: float) -> np.ndarray:
     return _point_at(pts, cum, (s + span) % total) - _point_at(pts, cum, (s - span) % total)
 
 
-def _seam(ring: Ring, s: float, width: float, edge: cKDTree | None = None) -> float:
+def _seam(ring: Ring, s: float, width: float, edge: Callable[[], cKDTree | None] | None = None) -> float:
     """Arclength of a lone ring's seam: the point nearest (along the ring) to ``s`` where the ring
     turns less than ``CORNER_ANGLE`` over a width either side, so the ends of the walk meet along a
     straight stretch and their round caps touch; at a sharp tip they would be lengthened past
     each other (:func:`~curvslice.toolpaths.beads.fit_beads`). Where no stretch is that straight (a
     ring a few widths long), its straightest point where the strip between it and the layer's ``edge``
-    (a tree of points along it) is narrowest, within the edge's sampling step (``FIT_STEP`` widths): at
+    (a tree of points along it, asked for only here) is narrowest, within the edge's sampling step (``FIT_STEP`` widths): at
     the tip of an elongated ring the caps were widened over each other (fertility 0.8 layer 150: 15.5 %
     overlap); at a corner of the layer the seam's caps, as wide as the walk's ends, leave the corner
     open that the widened beads around the ring reach everywhere else (a rounded square 2.5 w across at
@@ -81,8 +82,9 @@ def _seam(ring: Ring, s: float, width: float, edge: cKDTree | None = None) -> fl
     cos = _turn_cos(ring, cum, at, width)
     straight = np.nonzero(cos > np.cos(CORNER_ANGLE))[0]
     if len(straight) == 0:  # a small ring: its straightest point, of those where its strip is narrowest
-        if edge is not None and edge.n:
-            strip = edge.query(ring.points)[0]  # (at: the points' arclengths)
+        tree = edge() if edge is not None else None
+        if tree is not None and tree.n:
+            strip = tree.query(ring.points)[0]  # (at: the points' arclengths)
             narrow = np.flatnonzero(strip <= strip.min() + FIT_STEP * width)
             return float(at[narrow[np.argmax(cos[narrow])]])
         return float(at[np.argmax(cos)])
@@ -364,7 +366,7 @@ class _Builder:
             tangent = _tangent(ring, s, self.w)
         seam = len(rings) == 1 and host_tangent is None  # a lone ring's own seam: no link crosses its cut
         if seam:
-            cuts[0] = _seam(rings[0], cuts[0], self.w, self._edge_tree())
+            cuts[0] = _seam(rings[0], cuts[0], self.w, self._edge_tree)
         dots = [r.length < DOT_RING * self.w for r in rings]
         # an odd chain turns at its innermost ring, reached by the link in from the end of the inward walk and
         # left by the link out to the start of the outward one, both on the same side of the cut line: a ring
