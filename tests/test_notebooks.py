@@ -3,6 +3,7 @@ they are committed with their outputs stripped."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import nbformat
@@ -23,11 +24,19 @@ def test_notebook_is_stored_without_outputs(path):
     assert code and all(not c.outputs and c.execution_count is None for c in code)
 
 
+def _shared_models_read(book) -> list[str]:
+    """The ../shared/models files a notebook's code reads (``SHARED / "name.stl"`` outside comments)."""
+    code = "\n".join(line.split("#")[0] for c in book.cells if c.cell_type == "code" for line in c.source.splitlines())
+    return re.findall(r'SHARED\s*/\s*"([^"]+)"', code)
+
+
 @pytest.mark.parametrize("path", NOTEBOOKS, ids=lambda p: p.stem)
-def test_notebook_executes(path, tmp_path, monkeypatch):
+def test_notebook_executes(path, tmp_path, monkeypatch, shared_model):
     monkeypatch.setenv("CURVSLICE_NOTEBOOK_OUT", str(tmp_path))
     monkeypatch.setenv("MPLBACKEND", "Agg")
     book = nbformat.read(path, as_version=4)
+    for name in _shared_models_read(book):  # (skips when ../shared/models lacks it, as every test reading it does)
+        shared_model(Path(name).stem)
     NotebookClient(book, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(path.parent)}}).execute()
     errors = [o for c in book.cells if c.cell_type == "code" for o in c.outputs if o.output_type == "error"]
     assert not errors
