@@ -80,6 +80,9 @@ SKIN_INSET = 0.05
 #: voxel widths), for at most SEPARATION_ROUNDS rounds.
 CLEARANCE = 0.01
 SEPARATION_ROUNDS = 8
+#: Smallest extent (mm) of a kept layer triangle's bounding rectangle: trimesh's test of a degenerate triangle,
+#: the one the tool-path stage cleans its layers with (``clean_surface``), so it sees the same faces.
+DEGENERATE = 1e-9
 
 # ----------------------------------------------------------------------------------------------
 # 1. the continued field
@@ -527,6 +530,7 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
         t2 = time.perf_counter()
         if layers:
             tv, tf, moved, dropped = separate_from(layers[-1], tv, tf, w, distance, sides)
+        tf = _spanning(tv, tf)  # (a push may fold a triangle flat too)
         trim_s += time.perf_counter() - t2
         mesh = trimesh.Trimesh(tv, tf, process=False)
         mesh.metadata.update(layer=i + 1, isovalue=level, lowered=offset != 0.0, untrimmed_faces=untrimmed,
@@ -551,11 +555,19 @@ def _contour_layer(i: int, levels: np.ndarray, step: float, field: ContinuedFiel
         v, f = dual_contour(field, level, band, edges=edges, active=active)
         t1 = time.perf_counter()
         tv, tf = trim_by_solid(v, f, distance, sides)
+        tf = _spanning(tv, tf)
         dc_s += t1 - t0
         trim_s += time.perf_counter() - t1
         if len(tf):
             break
     return tv, tf, len(f), level, offset, dc_s, trim_s
+
+
+def _spanning(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``faces`` but those whose corners lie on one point or one line (trimming can put them there): such a
+    triangle carries no surface, and no crossing test sees it through a plane it does not span (elephant 0.8:
+    one of layer 104's crossed layer 103 by an edge); a layer left with only those is empty, and lowered."""
+    return faces[trimesh.triangles.nondegenerate(vertices[faces], height=DEGENERATE)] if len(faces) else faces
 
 
 def write_layers(outdir: str | Path, layers: list[trimesh.Trimesh]) -> list[Path]:

@@ -210,6 +210,59 @@ def test_stage_output_passes_the_verifier_and_corruption_is_caught(tmp_path):
     assert not broken["samples on layers"].passed
 
 
+def test_a_segment_whose_chord_leaves_the_layer_is_cut_whatever_it_carries():
+    """Two flat squares 2.2 w apart: a pass on them is cut where its chord crosses the gap (its middle lies
+    1.1 w from the layer), its other columns cut with it; with its points on the layer, a segment no longer than
+    twice OFF_LAYER cannot pass farther than OFF_LAYER from it (half its length from an end) and is not probed."""
+    from curvslice.toolpaths.passes import split_off_layer
+
+    layer = trimesh.util.concatenate([trimesh.creation.box(extents=(4, 4, 1e-3)).apply_translation((2, 2, 0)),
+                                      trimesh.creation.box(extents=(4, 4, 1e-3)).apply_translation((8.2, 2, 0))])
+    asked = []
+
+    def off(points):
+        asked.append(len(points))
+        return trimesh.proximity.closest_point(layer, points)[1]
+
+    x = np.array([1.0, 2.0, 3.0, 3.9, 6.1, 7.1, 8.1, 9.1])
+    piece = np.c_[x, np.full(8, 2.0), np.zeros(8), np.arange(8.0)]  # a fourth column (a bead width, say)
+    parts = split_off_layer([piece], off, 1.0, on_layer=True)
+    assert [p[:, 3].tolist() for p in parts] == [[0, 1, 2, 3], [4, 5, 6, 7]]
+    assert asked == [3]  # only the 2.2 w segment's quarter points
+    assert len(split_off_layer([piece[:4]], off, 1.0, on_layer=True)) == 1
+
+
+def test_the_verifier_catches_a_printed_chord_off_its_layer(tmp_path):
+    """A bead laid straight across a dome (the samples between two far points of a pass dropped): its chord
+    passes under the layer, through the ones below; every other check of the plan passes."""
+    from curvslice.toolpaths import ToolpathSettings, plan_toolpaths, save_toolpaths
+    from curvslice.verify.toolpaths import checks
+
+    base = polygon_mesh(sg.Point(0, 0).buffer(10.0, 96), 0.7)
+    v = base.vertices.copy()
+    v[:, 2] = 4.0 * np.exp(-(v[:, 0] ** 2 + v[:, 1] ** 2) / 30.0)
+    layer = trimesh.Trimesh(v, base.faces, process=False)
+    (tmp_path / "layers").mkdir()
+    layer.export(tmp_path / "layers" / "layer_0001.ply")
+    settings = ToolpathSettings(path_width=1.0)
+    save_toolpaths(tmp_path, plan_toolpaths([layer], settings), settings)
+    assert {c.name: c for c in checks(tmp_path)}["printed segments follow their layer"].passed
+    data = dict(np.load(tmp_path / "toolpaths.npz"))
+    path, pos = data["path"], data["positions"]
+    first = np.flatnonzero(path == path[0])
+    # the first sample of the first piece and the one of its samples whose chord from there sags the most
+    u = np.array([0.25, 0.5, 0.75])[:, None, None]
+    probe = pos[first[0]] + u * (pos[first] - pos[first[0]])
+    sag = trimesh.proximity.closest_point(layer, probe.reshape(-1, 3))[1].reshape(3, -1).max(axis=0)
+    far = first[int(np.argmax(sag))]
+    assert sag.max() > 1.0
+    keep = np.r_[np.arange(first[0] + 1), np.arange(far, len(path))]
+    np.savez(tmp_path / "toolpaths.npz", **{k: a[keep] if a.shape[:1] == path.shape else a for k, a in data.items()})
+    broken = {c.name: c for c in checks(tmp_path)}
+    assert not broken["printed segments follow their layer"].passed
+    assert "1 segments leave it" in broken["printed segments follow their layer"].value
+
+
 @pytest.mark.parametrize("rule", ["seam", "chain"])
 def test_start_rules_start_each_layer_at_the_seam_or_where_the_previous_ended(rule):
     """Four discs 0.9 mm apart, each shifted 1.5 mm in x. ``seam``: every even layer starts, every odd

@@ -200,6 +200,22 @@ def test_winding_number_is_the_exact_inside_test_and_agrees_with_ray_parity(shar
             == verify_layers.inside_by_ray_parity(solid, pts[clear])).all()
 
 
+def test_winding_numbers_near_large_triangles_are_evaluated_in_bounded_chunks(monkeypatch):
+    """A flat plate of 12 triangles (a CAD part's faces): every point near it is near every leaf of the tree,
+    so its (point, triangle) pairs are taken WINDING_PAIRS at a time (couplingdown at 70 mm: 110 M pairs, 24 GB
+    at once); the answer is that of one pass, and 1 inside, 0 outside."""
+    plate = trimesh.creation.box(extents=(70.0, 70.0, 2.0))
+    rng = np.random.default_rng(7)
+    pts = np.c_[rng.uniform(-40, 40, (3000, 2)), rng.uniform(-3, 3, 3000)]
+    clear = (np.abs(np.abs(pts[:, 2]) - 1.0) > 0.05) & (np.abs(pts[:, :2]).max(axis=1) < 34.9) | (np.abs(pts[:, :2]).max(axis=1) > 35.1)
+    whole = verify_layers.winding_numbers(plate, pts)
+    monkeypatch.setattr(verify_layers, "WINDING_PAIRS", 97)
+    chunked = verify_layers.winding_numbers(plate, pts)
+    assert np.allclose(chunked, whole, atol=1e-9)
+    inside = (np.abs(pts[:, 2]) < 1.0) & (np.abs(pts[:, :2]).max(axis=1) < 35.0)
+    assert ((chunked[clear] > 0.5) == inside[clear]).all()
+
+
 def test_verifier_inside_test_agrees_with_the_signed_distance_on_every_layer_vertex(tmp_path):
     """Issue 18: on the arch (a procedural solid whose opening is an overhang), the verifier's winding
     number and the exact signed distance classify every layer vertex alike off ∂H -- the layers, and

@@ -220,17 +220,21 @@ def join_touching(passes: list[np.ndarray], width: float) -> list[np.ndarray]:
 
 
 def split_off_layer(passes: list[np.ndarray], off: Callable[[np.ndarray], np.ndarray],
-                    width: float) -> list[np.ndarray]:
+                    width: float, on_layer: bool = False) -> list[np.ndarray]:
     """``passes`` cut in two wherever a segment leaves the layer: a point at a quarter, half or three
     quarters of it lies more than ``OFF_LAYER`` widths from the layer (``off(points)``: their distances to
     it). Ring walks follow the mesh; the straight links between rings and into spliced children do not,
     and across a fold of a curved layer or a notch in its edge such a link is a bead laid through the air,
     outside the part (kitten 1 mm, layer 64: a 4 mm link across a fold 0.75 mm outside the solid, its whole
     bead beyond it). There the piece ends and a travel move takes its place. Only segments longer than
-    ``OFF_LAYER`` widths are tested (a shorter one cannot leave)."""
-    long = [np.flatnonzero(row_norms(np.diff(p, axis=0)) > OFF_LAYER * width) for p in passes]
+    ``OFF_LAYER`` widths are tested (a shorter one cannot leave); with ``on_layer`` (every point lies on the
+    layer) only those longer than twice that, as every point of a chord lies within half its length of an
+    end. The passes' first three columns are the points; further columns (bead widths...) are cut with them."""
+    factor = 2.0 if on_layer else 1.0
+    long = [np.flatnonzero(row_norms(np.diff(p[:, :3], axis=0)) > factor * OFF_LAYER * width) for p in passes]
     u = np.array([0.25, 0.5, 0.75])
-    probe = [(p[k, None] + u[None, :, None] * (p[k + 1] - p[k])[:, None]).reshape(-1, 3) for p, k in zip(passes, long)]
+    probe = [(p[k, None, :3] + u[None, :, None] * (p[k + 1, :3] - p[k, :3])[:, None]).reshape(-1, 3)
+             for p, k in zip(passes, long)]
     if not sum(len(q) for q in probe):
         return list(passes)
     far = off(np.vstack(probe)) > OFF_LAYER * width

@@ -22,7 +22,7 @@ from curvslice.geodesic import boundary_distance, edge_keys
 from curvslice.toolpaths.beads import fill_slivers, layer_beads, nearest_below, surface_samples
 from curvslice.toolpaths.constants import (BEAD_MIN, BRIDGE_HOLE, FIRST_LEVEL, FLOOR_CANDIDATES, GAP_NOISE, HARD_TILT, MAX_SHIFT,
                                            SUBDIVIDE_EDGE, THICKNESS_CANDIDATES, TURN_WEIGHT, WIDTH_WEIGHT)
-from curvslice.toolpaths.passes import join_touching, thin_passes, uncross
+from curvslice.toolpaths.passes import join_touching, split_off_layer, thin_passes, uncross
 from curvslice.toolpaths.resampling import bead_room, extrusion_amounts, resample
 from curvslice.toolpaths.rings import contour_gap, contour_rings, peak_rings, prune_islands, split_pinches
 from curvslice.toolpaths.spirals import connected_spirals
@@ -580,13 +580,24 @@ def _orient_layer(k: int, folded: _Folded, prepared: _Prepared, surfaces: list[t
         pos, _, pos_face = ori.closest_points(pos, tri, own_tree, reach=own_reach)  # crest subdivisions onto the layer
         # the low-pass may have tilted a sample past the limit: never into the printed side
         nrm = ori.limit_tilt(nrm, ori.surface_normals(surface, pos, pos_face), HARD_TILT)
+        # a segment whose chord still leaves the layer, its ends on it, is a travel and not a bead through the
+        # air or through the layers below (femur 0.8 layer 99: a 1.8 w segment across a fold of the femoral
+        # head's cap, 0.64 mm outside H); a sample left alone between two such segments prints nothing
+        parts = split_off_layer(np.split(np.c_[pos, nrm, parent, frac], np.flatnonzero(np.diff(pid[parent])) + 1),
+                                lambda x: ori.closest_points(x, tri, own_tree, reach=own_reach)[1], w, on_layer=True)
+        parts = [part for part in parts if len(part) >= 2]
+        row["pieces"], row["jumps"] = len(parts), max(len(parts) - 1, 0)
+        if not parts:
+            return out, row, folded.seconds, perf_counter() - t1
+        stacked = np.vstack(parts)
+        pos, nrm, parent, frac = stacked[:, :3], stacked[:, 3:6], stacked[:, 6].astype(np.int64), stacked[:, 7]
         nxt = np.minimum(parent + 1, len(q) - 1)
         thick = np.clip(dist, settings.min_thickness * w, settings.max_thickness * w)
         row["thickness_clamped"] = int(np.sum((dist < settings.min_thickness * w) | (dist > settings.max_thickness * w)))
         out["positions"] = pos
         out["normals"] = nrm
         out["layer"] = np.full(len(pos), k + 1, np.int32)
-        out["path"] = pid[parent].astype(np.int32)
+        out["path"] = piece_labels(parts).astype(np.int32)
         out["thickness"] = thick[parent] + frac * (thick[nxt] - thick[parent])
         out["bead"] = bead[parent] + frac * (bead[nxt] - bead[parent])
         row["samples"] = len(pos)

@@ -7,7 +7,8 @@ one its extrusion deposits: the stadium section ``h·(b − h) + π h²/4`` (h t
 thickness) of the filament volume ``E·π d²/4`` spread over the segment's length, solved for ``b``
 (d from the G-code header; a path's first sample takes its first segment's width), orientation continuity (consecutive
 samples of one piece within 10°), orientation validity (unit, on the unprinted side of the
-layer), samples lying on their layer, printed beads touching the solid (a bead laid across a hole
+layer), samples lying on their layer, printed segments following it (no chord farther than half a width from
+the layer: a bead across a gap wider than itself, or through the layers below), printed beads touching the solid (a bead laid across a hole
 or beside the part, its centre line more than half its width outside H: generalized winding number of ∂H
 at points along every extruding segment, as the layers' check),
 extrusion sanity and the G-code agreeing with the arrays.
@@ -32,6 +33,9 @@ CONTINUITY_MIN = 0.99
 MAX_STEP_ANGLE = np.radians(10.0)
 #: Spacing (path widths) of the points along printed segments tested for lying inside H.
 INSIDE_SPACING = 0.5
+#: Farthest (path widths) a printed segment's chord may pass from its layer, at a quarter, half and three quarters
+#: of it: farther, its bead crosses a gap in the layer wider than itself, or cuts through the layers below.
+CHORD_OFF = 0.5
 _HEADER = re.compile(r"^;\s*(path_width|filament_diameter)\s*=\s*([-+0-9.eE]+)")
 _MOVE = re.compile(r"^(G0|G1)\s")
 _NUM = re.compile(r"(nX|nY|nZ|[XYZEF])([-+]?[0-9.]+)")
@@ -189,7 +193,9 @@ def checks(outdir: Path) -> list[Check] | None:
         f"max step {np.degrees(steps.max()) if len(steps) else 0:.1f}°")
 
     layer_files = sorted((outdir / "layers").glob("layer_*.ply"))
-    coverage, overlap, on_surface, facing = [], [], [], []
+    coverage, overlap, on_surface, facing, chord_off = [], [], [], [], []
+    # printed segments long enough to pass farther than CHORD_OFF from their layer (each end lies on it)
+    long = np.flatnonzero(~first[1:] & (extrusion[1:] > 0) & (seg[1:] > 2.0 * CHORD_OFF * width))
     for number, lf in enumerate(layer_files, start=1):
         mesh = trimesh.load(lf, process=False, force="mesh")
         mask = layer == number
@@ -199,6 +205,12 @@ def checks(outdir: Path) -> list[Check] | None:
         if mask.any() and len(mesh.faces):
             closest, dist, face = trimesh.proximity.closest_point(mesh, pos[mask])
             on_surface.append(float(dist.max()))
+            mine = long[layer[long] == number]
+            if len(mine):
+                u = np.array([0.25, 0.5, 0.75])[None, :, None]
+                probe = (pos[mine, None] + u * (pos[mine + 1] - pos[mine])[:, None]).reshape(-1, 3)
+                off = trimesh.proximity.closest_point(mesh, probe)[1].reshape(-1, 3).max(axis=1)
+                chord_off += [(float(d), number) for d in off]
             # the layer normal at the closest point, interpolated from the vertex normals (a sliver
             # triangle of the contoured layer may be flipped; the surface around it is not)
             with np.errstate(all="ignore"):
@@ -224,6 +236,12 @@ def checks(outdir: Path) -> list[Check] | None:
             f"{int(np.sum(dots <= 0))} samples point into printed side", "unit length, t·n > 0 with n the layer normal at the closest point")
         add("samples on layers", max(on_surface) <= 0.05 * width, f"max off-surface {max(on_surface):.3f} mm",
             "distance to the layer ≤ 5% of the path width")
+        leave = [(d, number) for d, number in chord_off if d > (CHORD_OFF + 0.05) * width]
+        where = np.unique([number for _, number in leave]).astype(int)
+        add("printed segments follow their layer", not leave, f"{len(leave)} segments leave it",
+            f"of {len(chord_off)} printed segments longer than {2 * CHORD_OFF:g} w, their chords within {CHORD_OFF:g} w "
+            f"(+0.05) of the layer at ¼, ½, ¾" + (f"; max {max(leave)[0] / width:.2f} w, on layers {layer_list(where)}" if leave else ""),
+            tuple(where))
     solid_path, field_path = outdir / "solid.stl", outdir / "field.npz"
     if solid_path.exists() and field_path.exists():
         with np.load(field_path) as f:
