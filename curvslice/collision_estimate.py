@@ -161,12 +161,27 @@ def distance_grid(mesh: trimesh.Trimesh, h: float, span: int = 3) -> _DistanceGr
         small = sv[sf]
         lo = np.vstack([lo[~big], np.floor((small.min(axis=1) - origin) / h).astype(np.int64)])
         hi = np.vstack([hi[~big], np.floor((small.max(axis=1) - origin) / h).astype(np.int64)])
+    # each triangle marks the cells lo + min(offset, hi - lo): those of the offsets its box reaches on every
+    # axis (a clamped offset repeats one of them), written by flat index
     marked = np.zeros(shape, bool)
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    start, extent = lo @ strides, hi - lo
+    reaches = [[extent[:, axis] >= o for o in range(span)] for axis in range(3)]
     for offset in np.ndindex(span, span, span):
-        idx = np.minimum(lo + offset, hi)
-        marked[idx[:, 0], idx[:, 1], idx[:, 2]] = True
-    edt = distance_transform_edt(~marked) * h
-    return _DistanceGrid(origin, h, edt, SQRT3_2 * h)
+        keep = reaches[0][offset[0]] & reaches[1][offset[1]] & reaches[2][offset[2]]
+        marked.reshape(-1)[start[keep] + int(np.dot(offset, strides))] = True
+    return _DistanceGrid(origin, h, _edt(~marked) * h, SQRT3_2 * h)
+
+
+def _edt(free: np.ndarray) -> np.ndarray:
+    """``scipy.ndimage.distance_transform_edt(free)`` (cells), its distances summed from the feature
+    transform in integers (the same exact sums of squares, without its float copies of the index grids)."""
+    nearest = distance_transform_edt(free, return_distances=False, return_indices=True)
+    squared = np.zeros(free.shape, np.int64)
+    for axis, n in enumerate(free.shape):
+        d = nearest[axis] - np.arange(n, dtype=nearest.dtype).reshape((-1,) + (1,) * (free.ndim - 1 - axis))
+        squared += d * d
+    return np.sqrt(squared.astype(np.float64))
 
 
 @dataclass(frozen=True)
