@@ -291,16 +291,28 @@ class SphereBounds:
         """(n, len(pairs)) bool for body poses (n, bodies, 4, 4) as built by
         :meth:`CollisionScene._poses`: True where the pair surely does not touch. With ``rows``
         (n, len(pairs)) bool, only those entries are examined (the others stay False). Each link is
-        first tested by its bounding sphere, then (where that fails) by its cover."""
+        first tested by its bounding sphere, then (where that fails) by its cover. A link's cover
+        centres (base frame, and frame P for the carried bodies) are placed once per row for all the
+        bodies it is tested against."""
         n, L, C = len(poses), len(self.centres), len(self.pieces)
         rows = np.ones((n, len(pairs)), bool) if rows is None else rows
         out = np.zeros((n, len(pairs)), bool)
         R, t = poses[:, :L, :3, :3], poses[:, :L, :3, 3]
         whole = (R @ self.whole[0][..., None])[..., 0] + t  # (n, L, 3) bounding-sphere centres
         platform_inverse = rigid_inverse(poses[:, L])
+        whole_in_p = None  # the bounding-sphere centres in frame P
+        placed = {"B": np.empty((n, L) + self.centres.shape[1:]), "P": np.empty((n, L) + self.centres.shape[1:])}
+        known = {"B": np.zeros((n, L), bool), "P": np.zeros((n, L), bool)}
 
-        def spheres(r: np.ndarray, link: np.ndarray) -> np.ndarray:  # cover centres (m, K, 3) of links at rows
-            return self.centres[link] @ np.swapaxes(R[r, link], 1, 2) + t[r, link][:, None]
+        def spheres(r: np.ndarray, link: np.ndarray, frame: str = "B") -> np.ndarray:
+            """Cover centres (m, K, 3) of links at rows, in the base frame B or the platform's P."""
+            todo = ~known[frame][r, link]
+            if todo.any():
+                rr, ll = r[todo], link[todo]
+                placed[frame][rr, ll] = self.centres[ll] @ np.swapaxes(R[rr, ll], 1, 2) + t[rr, ll][:, None] \
+                    if frame == "B" else _transform(platform_inverse[rr], spheres(rr, ll))
+                known[frame][rr, ll] = True
+            return placed[frame][r, link]
 
         for kind, body, cols, other in self._group(pairs):
             r = np.flatnonzero(rows[:, cols].any(axis=1))
@@ -312,8 +324,11 @@ class SphereBounds:
             if kind == "links":
                 a, b = other[:, 0], other[:, 1]
                 clear = np.linalg.norm(whole[r][:, a] - whole[r][:, b], axis=-1) - self.whole[1][a] - self.whole[1][b]
+            elif kind == "static":
+                clear = self._static_clearance(body - L - C, whole[r][:, other], self.whole[1][other])
             else:
-                clear = self._clearance(kind, body, whole[r][:, other], self.whole[1][other], platform_inverse[r])
+                whole_in_p = _transform(platform_inverse, whole) if whole_in_p is None else whole_in_p
+                clear = self.pieces[body - L].field(whole_in_p[r][:, other]) - self.whole[1][other]
             ok = clear > CLEARANCE
             i, j = np.nonzero(~ok & rows[r][:, cols])  # the bounding sphere is not enough: the cover
             if len(i):
@@ -321,22 +336,19 @@ class SphereBounds:
                     xa, xb = spheres(r[i], other[j, 0]), spheres(r[i], other[j, 1])
                     d = np.linalg.norm(xa[:, :, None] - xb[:, None], axis=-1)
                     fine = (d - self.radii[other[j, 0]][:, :, None] - self.radii[other[j, 1]][:, None]).min(axis=(1, 2))
+                elif kind == "static":
+                    fine = self._static_clearance(body - L - C, spheres(r[i], other[j]), self.radii[other[j]]).min(axis=1)
                 else:
-                    fine = self._clearance(kind, body, spheres(r[i], other[j]), self.radii[other[j]],
-                                           platform_inverse[r[i]]).min(axis=1)
+                    fine = (self.pieces[body - L].field(spheres(r[i], other[j], "P")) - self.radii[other[j]]).min(axis=1)
                 ok[i, j] = fine > CLEARANCE
             out[np.ix_(r, cols)] = ok
         return out & rows
 
-    def _clearance(self, kind: str, body: int, x: np.ndarray, radius: np.ndarray,
-                   platform_inverse: np.ndarray) -> np.ndarray:
+    def _static_clearance(self, s: int, x: np.ndarray, radius: np.ndarray) -> np.ndarray:
         """Lower bounds on the gap between spheres (centres x (m, ..., 3) in the base frame, radii
-        broadcast to them) and a static (exact primitive) or carried (field, frame P) body."""
-        L, C = len(self.centres), len(self.pieces)
-        if kind == "static":
-            T = self.static_inverse[body - L - C]
-            return _primitive_distance(self.static[body - L - C], x @ T[:3, :3].T + T[:3, 3]) - radius
-        return self.pieces[body - L].field(_transform(platform_inverse, x)) - radius
+        broadcast to them) and static body ``s`` (its exact primitive)."""
+        T = self.static_inverse[s]
+        return _primitive_distance(self.static[s], x @ T[:3, :3].T + T[:3, 3]) - radius
 
     def _carried_static(self, piece: CarriedBounds, s: int, platform_inverse: np.ndarray) -> np.ndarray:
         body = self.static[s]
