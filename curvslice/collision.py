@@ -204,6 +204,9 @@ class CollisionScene:
             self.static_poses.append(body.pose)
         for shape, pose in zip(self.static, self.static_poses):
             _set(shape.obj, pose)
+        # the static bodies' world-aligned boxes (centres, half extents) in the base frame
+        self._static_boxes = (np.array([P[:3, :3] @ sh.center + P[:3, 3] for sh, P in zip(self.static, self.static_poses)]),
+                              np.array([np.abs(P[:3, :3]) @ sh.half for sh, P in zip(self.static, self.static_poses)]))
         platform = platform_mesh(cell, platform_vertices)
         self.carried = [_mesh_shape("platform", platform)]
         self._answers = [{}]  # per carried body: {static body: {relative pose: fcl's answer}}
@@ -314,14 +317,12 @@ class CollisionScene:
         R, t = held[:, :3, :3], held[:, :3, 3]
         centre = np.stack([(R @ c.center) + t for c in shapes], axis=1)  # (n, C, 3) carried boxes in B
         reach = np.stack([np.abs(R) @ c.half for c in shapes], axis=1)
-        s_centre = np.array([(P[:3, :3] @ sh.center) + P[:3, 3] for sh, P in zip(self.static, self.static_poses)])
-        s_reach = np.array([np.abs(P[:3, :3]) @ sh.half for sh, P in zip(self.static, self.static_poses)])
+        s_centre, s_reach = self._static_boxes
         near = (np.abs(centre[:, :, None] - s_centre[None, None]) <= reach[:, :, None] + s_reach[None, None]).all(axis=-1)
         inverse = None
-        for k in np.argsort(-self._hits, kind="stable"):  # the pairs found in contact most often first
+        pairs = self._carried_static
+        for k in pairs[np.argsort(-self._hits[pairs], kind="stable")].tolist():  # those found in contact most often first
             c, st = self._carried_of[k], self._static_of[k]
-            if not (0 <= c < len(shapes) and st >= 0):
-                continue
             rows = np.flatnonzero(near[:, c, st] & ~out)
             if len(rows):
                 inverse = rigid_inverse(held) if inverse is None else inverse
@@ -390,6 +391,7 @@ class CollisionScene:
         # per pair: its first body as a carried body's index and its second as a static one's (a carried /
         # static pair has both in range: 0 <= carried < C, static >= 0)
         self._carried_of, self._static_of = self.pairs[:, 0] - L, self.pairs[:, 1] - (L + C)
+        self._carried_static = np.flatnonzero((self._carried_of >= 0) & (self._carried_of < C) & (self._static_of >= 0))
         self._hits = np.zeros(len(self.pairs))
         self.shapes = self.links + self.carried + self.static
         self.centers = np.array([s.center for s in self.shapes])
