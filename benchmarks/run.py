@@ -597,13 +597,14 @@ def markdown(result: dict[str, object]) -> str:
         note = "" if abs(c["voxel_mm"] - voxel) < 1e-9 else f" (ours @{c['voxel_mm']:g} mm)"
         peel, grow, trim = _median(c, "peeling"), _median(c, f"growing_{method}"), _median(c, "trimming")
         written = n["surfaces"]["layers"] - n["surfaces"]["empty"] if "surfaces" in n else None
+        theirs_written = "–" if ref["written"] is None else f"{ref['written']} of {ref['extracted']}"
         lines.append(
             f"| {model} @{voxel:g} mm, {method}{note} | {ref['voxels']:,} / {n['voxels']:,} "
             f"| {_fmt(ref['peeling'])} / {_fmt(peel) if method == 'pg-sp-gcfa' else '–'} ({_ratio(peel, ref['peeling']) if method == 'pg-sp-gcfa' else '–'}) "
             f"| {_fmt(ref['growing'])} / {_fmt(grow)} ({_ratio(grow, ref['growing'])}) "
             f"| {ref['missed']} / {n[method]['missed']} | {ref['layers']} / {n[method]['layers']} "
             f"| {_fmt(ref['trimming'])} / {_fmt(trim) if method == 'pg-sp-gcfa' else '–'} ({_ratio(trim, ref['trimming']) if method == 'pg-sp-gcfa' else '–'}) "
-            f"| {ref['written']} of {ref['extracted']} / {written if written is not None and method == 'pg-sp-gcfa' else '–'} |")
+            f"| {theirs_written} / {written if written is not None and method == 'pg-sp-gcfa' else '–'} |")
     if not any(c["model"] == model for model, _, _ in AUTHORS_CPP for c in cases):
         lines.append("| (no shared model in this suite) | | | | | | | |")
 

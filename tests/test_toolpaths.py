@@ -210,6 +210,23 @@ def test_stage_output_passes_the_verifier_and_corruption_is_caught(tmp_path):
     assert not broken["samples on layers"].passed
 
 
+def test_an_open_patch_wider_than_a_bead_gets_a_pass_wherever_one_bead_cannot_reach():
+    """A 4 w x 10 w patch no spiral covers (as where a layer's rings stop short of a net of strips: elephant 0.8
+    layer 73, 91 % coverage): its longest path runs corner to corner, so whatever lies farther from it than half
+    the widest bead gets passes of its own, until no open vertex is out of every pass's reach."""
+    from curvslice.toolpaths.constants import BEAD_RANGE
+    from curvslice.toolpaths.passes import gap_passes
+
+    width = 1.0
+    mesh = polygon_mesh(sg.box(0, 0, 10, 4), 0.3)
+    passes = gap_passes(mesh.vertices, mesh.faces, [], width)
+    assert len(passes) >= 3
+    reach = np.min([cKDTree(resample(p, 0.05)).query(mesh.vertices)[0] for p in passes], axis=0)
+    assert reach.max() <= 0.5 * BEAD_RANGE[1] * width + 0.3  # (within a mesh edge of it)
+    apart = [cKDTree(resample(p, 0.05)).query(resample(q, 0.05))[0].min() for i, p in enumerate(passes) for q in passes[i + 1:]]
+    assert min(apart) > 0.5 * BEAD_RANGE[1] * width - 0.3  # each pass where the others' beads cannot reach
+
+
 def test_a_segment_whose_chord_leaves_the_layer_is_cut_whatever_it_carries():
     """Two flat squares 2.2 w apart: a pass on them is cut where its chord crosses the gap (its middle lies
     1.1 w from the layer), its other columns cut with it; with its points on the layer, a segment no longer than
