@@ -14,7 +14,7 @@ from scipy.spatial import cKDTree
 from curvslice.executors import query_threads
 from curvslice.geodesic import edge_keys
 from curvslice.toolpaths.constants import (BEAD_MIN, BEAD_RANGE, BRANCH_MARGIN, BRANCH_ROUNDS, CROSS_ANGLE, CROSS_GAP, CROSS_PERCENTILE,
-                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, OFF_LAYER, OPEN_GAP, RIDGE_FLOOR,
+                                           DENSE_STEP, GAP_PASS_LENGTH, GAP_PASS_VERTICES, JOIN_GAP, MAX_SHIFT, OFF_LAYER, OPEN_GAP, RIDGE_FLOOR,
                                            RIDGE_REACH, THIN_REGION, UNCROSS_ROUNDS, WALL_LENGTH)
 from curvslice.toolpaths.resampling import resample
 from curvslice.vectors import row_norms
@@ -168,10 +168,13 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         if row_norms(np.diff(v[chain], axis=0)).sum() + (OPEN_GAP - 0.5) * width < GAP_PASS_LENGTH * width:
             continue
         passes.append(v[chain])
-        # what lies beyond half the widest bead from the pass, its bead cannot cover: a patch wider than a bead
-        # gets passes of its own there (elephant 0.8 layer 73, a net of strips round holes: a patch 3 w across
-        # got one pass down its side, 91 % coverage)
-        beyond = cKDTree(resample(v[chain], DENSE_STEP * width)).query(v[members])[0] > 0.5 * BEAD_RANGE[1] * width
+        # what lies farther from the pass than its widest bead reaches once the fit has shifted it towards that
+        # side (half of BEAD_RANGE's widest plus MAX_SHIFT), no bead of it can cover: a patch wider than that gets
+        # passes of its own there (elephant 0.8 layer 73, a net of strips round holes: a patch 3 w across got one
+        # pass down its side, 91 % coverage); a strip that one shifted bead spans keeps one pass (a second one
+        # beside it, each at least as wide as the layer is thick, overlapped it: the corpus' thin walls at 1 mm)
+        reach = (0.5 * BEAD_RANGE[1] + MAX_SHIFT) * width
+        beyond = cKDTree(resample(v[chain], DENSE_STEP * width)).query(v[members])[0] > reach
         rest = members[beyond]
         if len(rest) >= min_vertices:
             n_rest, rest_label = connected_components(graph[rest][:, rest], directed=False)
