@@ -546,7 +546,8 @@ def _pulled_beads(fitted: np.ndarray, printed: np.ndarray, normals: np.ndarray, 
 def _orient_layer(k: int, folded: _Folded, prepared: _Prepared, surfaces: list[trimesh.Trimesh], supports: list,
                   settings: ToolpathSettings) -> tuple[dict[str, np.ndarray], dict[str, float], float, float]:
     """Layer ``k``'s pieces as printed (beads widened over the slivers: :func:`_sliver_widths` on the
-    surface samples of ``prepared``; uncrossed, re-sampled: :func:`_piece_samples`), their orientations
+    surface samples of ``prepared``; uncrossed, re-sampled: :func:`_piece_samples`; cut where a printed segment's
+    chord leaves the layer: :func:`~curvslice.toolpaths.passes.split_off_layer`), their orientations
     (Eq. 3.3), thickness and beads per sample: a parallel task once its pieces are known. Returns its
     arrays (path ids from 0 within the layer), its report row, and the seconds of its pieces and of this."""
     t1 = perf_counter()
