@@ -530,7 +530,8 @@ def extract_working_surfaces(growing: np.ndarray, origin: np.ndarray, voxel_size
         t2 = time.perf_counter()
         if layers:
             tv, tf, moved, dropped = separate_from(layers[-1], tv, tf, w, distance, sides)
-        tf = _spanning(tv, tf)  # (a push may fold a triangle flat too)
+        if moved:
+            tf = _spanning(tv, tf)  # (a push may fold a triangle flat too)
         trim_s += time.perf_counter() - t2
         mesh = trimesh.Trimesh(tv, tf, process=False)
         mesh.metadata.update(layer=i + 1, isovalue=level, lowered=offset != 0.0, untrimmed_faces=untrimmed,

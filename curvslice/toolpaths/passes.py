@@ -159,6 +159,12 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
     n_comp, label = connected_components(graph, directed=False)
     sizes = np.bincount(label[open_v], minlength=n_comp)
     passes = []
+    # what lies farther from a pass than its widest bead reaches once the fit has shifted it towards that side
+    # (half of BEAD_RANGE's widest plus MAX_SHIFT), no bead of it can cover: a patch wider than that gets passes of
+    # its own there (elephant 0.8 layer 73, a net of strips round holes: a patch 3 w across got one pass down its
+    # side, 91 % coverage); a strip that one shifted bead spans keeps one pass (a second one beside it, each at
+    # least as wide as the layer is thick, overlapped it: the corpus' thin walls at 1 mm)
+    reach = (0.5 * BEAD_RANGE[1] + MAX_SHIFT) * width
     todo = [np.nonzero((label == c) & open_v)[0] for c in np.nonzero(sizes >= min_vertices)[0]]
     while todo:
         members = todo.pop(0)
@@ -168,12 +174,6 @@ def gap_passes(vertices: np.ndarray, faces: np.ndarray, pieces: list[np.ndarray]
         if row_norms(np.diff(v[chain], axis=0)).sum() + (OPEN_GAP - 0.5) * width < GAP_PASS_LENGTH * width:
             continue
         passes.append(v[chain])
-        # what lies farther from the pass than its widest bead reaches once the fit has shifted it towards that
-        # side (half of BEAD_RANGE's widest plus MAX_SHIFT), no bead of it can cover: a patch wider than that gets
-        # passes of its own there (elephant 0.8 layer 73, a net of strips round holes: a patch 3 w across got one
-        # pass down its side, 91 % coverage); a strip that one shifted bead spans keeps one pass (a second one
-        # beside it, each at least as wide as the layer is thick, overlapped it: the corpus' thin walls at 1 mm)
-        reach = (0.5 * BEAD_RANGE[1] + MAX_SHIFT) * width
         beyond = cKDTree(resample(v[chain], DENSE_STEP * width)).query(v[members])[0] > reach
         rest = members[beyond]
         if len(rest) >= min_vertices:
