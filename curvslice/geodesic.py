@@ -28,24 +28,30 @@ def cotan_laplacian(vertices: np.ndarray, faces: np.ndarray) -> tuple[sp.csr_mat
     """Cotangent Laplacian ``L`` (negative semi-definite, zero row sums) and lumped vertex mass."""
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
-    n = len(v)
-    cot = _corner_cotangents(v, f)
+    L, mass, _ = _laplacian(np.take(v, f, axis=0), f, len(v))
+    return L, mass
+
+
+def _laplacian(tri: np.ndarray, f: np.ndarray, n: int) -> tuple[sp.csr_matrix, np.ndarray, np.ndarray]:
+    """:func:`cotan_laplacian` of the (F,3,3) triangles ``tri`` (faces ``f`` of ``n`` vertices; ``np.take`` of the
+    vertices gathers them 4x faster than numpy's row indexing), with the corner cotangents."""
+    cot = _corner_cotangents(tri)
     rows = np.concatenate([f[:, 1], f[:, 2], f[:, 0]])
     cols = np.concatenate([f[:, 2], f[:, 0], f[:, 1]])
     w = 0.5 * np.concatenate([cot[:, 0], cot[:, 1], cot[:, 2]])
     W = sp.coo_matrix((w, (rows, cols)), shape=(n, n)).tocsr()
     W = W + W.T
     L = W - sp.diags(np.asarray(W.sum(axis=1)).ravel())
-    area = 0.5 * row_norms(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]))
+    area = 0.5 * row_norms(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
     mass = np.bincount(f.ravel(), weights=np.repeat(area / 3.0, 3), minlength=n)
-    return L.tocsr(), mass
+    return L.tocsr(), mass, cot
 
 
-def _corner_cotangents(v: np.ndarray, f: np.ndarray) -> np.ndarray:
-    """(F,3) cotangent of the angle at each triangle corner (0 for degenerate triangles)."""
-    out = np.zeros((len(f), 3))
+def _corner_cotangents(tri: np.ndarray) -> np.ndarray:
+    """(F,3) cotangent of the angle at each corner of the (F,3,3) triangles (0 for degenerate ones)."""
+    out = np.zeros((len(tri), 3))
     for c in range(3):
-        a, b, o = v[f[:, (c + 1) % 3]], v[f[:, (c + 2) % 3]], v[f[:, c]]
+        a, b, o = tri[:, (c + 1) % 3], tri[:, (c + 2) % 3], tri[:, c]
         e1, e2 = a - o, b - o
         cross = row_norms(np.cross(e1, e2))
         dot = np.einsum("ij,ij->i", e1, e2)
@@ -71,26 +77,26 @@ def boundary_edges(faces: np.ndarray) -> np.ndarray:
     return np.c_[single // n, single % n]
 
 
-def _face_gradient(v: np.ndarray, f: np.ndarray, u: np.ndarray) -> np.ndarray:
-    """Per-triangle gradient of the piecewise-linear function ``u``."""
-    normal = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+def _face_gradient(tri: np.ndarray, f: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Per-triangle gradient of the piecewise-linear function ``u`` on the triangles ``tri`` (faces ``f``)."""
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     double_area = row_norms(normal)
     unit = normal / np.maximum(double_area, 1e-300)[:, None]
     grad = np.zeros((len(f), 3))
     for c in range(3):
-        edge = v[f[:, (c + 2) % 3]] - v[f[:, (c + 1) % 3]]  # edge opposite corner c, counter-clockwise
+        edge = tri[:, (c + 2) % 3] - tri[:, (c + 1) % 3]  # edge opposite corner c, counter-clockwise
         grad += u[f[:, c]][:, None] * np.cross(unit, edge)
     return grad / np.maximum(double_area, 1e-300)[:, None]
 
 
-def _divergence(v: np.ndarray, f: np.ndarray, cot: np.ndarray, X: np.ndarray) -> np.ndarray:
-    """Integrated divergence per vertex of a per-triangle vector field (Crane et al. 2013, Eq. 8)."""
-    div = np.zeros(len(v))
+def _divergence(tri: np.ndarray, f: np.ndarray, n: int, cot: np.ndarray, X: np.ndarray) -> np.ndarray:
+    """Integrated divergence per vertex (``n`` of them) of a per-triangle vector field on the triangles ``tri``
+    (faces ``f``; Crane et al. 2013, Eq. 8)."""
+    div = np.zeros(n)
     for c in range(3):
-        i, j, k = f[:, c], f[:, (c + 1) % 3], f[:, (c + 2) % 3]
-        e1, e2 = v[j] - v[i], v[k] - v[i]
+        e1, e2 = tri[:, (c + 1) % 3] - tri[:, c], tri[:, (c + 2) % 3] - tri[:, c]
         contrib = cot[:, (c + 2) % 3] * np.einsum("ij,ij->i", e1, X) + cot[:, (c + 1) % 3] * np.einsum("ij,ij->i", e2, X)
-        div += 0.5 * np.bincount(i, weights=contrib, minlength=len(v))
+        div += 0.5 * np.bincount(f[:, c], weights=contrib, minlength=n)
     return div
 
 
@@ -115,8 +121,9 @@ def boundary_distance(vertices: np.ndarray, faces: np.ndarray, *, time_factor: f
     f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
     n = len(v)
     dist = np.full(n, np.nan)
-    doubled = row_norms(np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]]))
-    scale = row_norms(v[f[:, 1]] - v[f[:, 0]]).mean() if len(f) else 1.0
+    tri = np.take(v, f, axis=0)
+    doubled = row_norms(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]))
+    scale = row_norms(tri[:, 1] - tri[:, 0]).mean() if len(f) else 1.0
     f = f[doubled > 1e-10 * scale * scale]  # zero-area triangles carry no metric (vertices only there: NaN)
     bedges = boundary_edges(f)
     if len(f) == 0 or len(bedges) == 0:
@@ -134,8 +141,9 @@ def boundary_distance(vertices: np.ndarray, faces: np.ndarray, *, time_factor: f
     is_b = on_boundary[keep]
     inner = ~is_b
 
-    L, mass = cotan_laplacian(vk, fk)
-    h = row_norms(vk[fk[:, [1, 2, 0]]] - vk[fk]).mean()
+    tri = np.take(vk, fk, axis=0)
+    L, mass, cot = _laplacian(tri, fk, len(vk))
+    h = row_norms(tri[:, [1, 2, 0]] - tri).mean()
     t = time_factor * h * h
     A = (sp.diags(mass) - t * L).tocsc()
     length = row_norms(vk[new_id[bedges[:, 0]]] - vk[new_id[bedges[:, 1]]])
@@ -150,10 +158,10 @@ def boundary_distance(vertices: np.ndarray, faces: np.ndarray, *, time_factor: f
         u_dirichlet[inner] = _factor(A_ii).solve(-(A[inner][:, is_b] @ u_dirichlet[is_b]))
         u = u_dirichlet if u_neumann is None else 0.5 * (u_neumann + u_dirichlet)
 
-    grad = _face_gradient(vk, fk, u)
+    grad = _face_gradient(tri, fk, u)
     norm = row_norms(grad)[..., None]
     X = -grad / np.where(norm > 0, norm, 1.0)
-    div = _divergence(vk, fk, _corner_cotangents(vk, fk), X)
+    div = _divergence(tri, fk, len(vk), cot, X)
     phi = np.zeros(len(vk))
     L_ii = L[inner][:, inner].tocsc()
     phi[inner] = _factor(L_ii).solve(div[inner])

@@ -39,14 +39,15 @@ def closest_points(points: np.ndarray, triangles: np.ndarray, tree: cKDTree | No
     centre, idx = tree.query(pts, k=k, workers=query_threads(len(pts)))
     centre, idx = centre.reshape(len(pts), k), idx.reshape(len(pts), k)
     rows = np.arange(len(pts))
-    first = _closest_on_triangles(tri[idx[:, 0]], pts)
+    first = _closest_on_triangles(np.take(tri, idx[:, 0], axis=0), pts)  # (take: 4x numpy's row indexing)
     dist = np.full((len(pts), k), np.inf)
     dist[:, 0] = row_norms(first - pts)
     # (a margin far above rounding: a candidate is skipped only when it is surely farther)
     row, col = np.nonzero(centre[:, 1:] - reach[idx[:, 1:]] <= dist[:, :1] + _SURELY_FARTHER)
     col += 1
-    other = _closest_on_triangles(tri[idx[row, col]], pts[row])
-    dist[row, col] = row_norms(other - pts[row])
+    at = np.take(pts, row, axis=0)
+    other = _closest_on_triangles(np.take(tri, idx[row, col], axis=0), at)
+    dist[row, col] = row_norms(other - at)
     best = np.argmin(dist, axis=1)
     out = first.copy()
     won = best[row] == col

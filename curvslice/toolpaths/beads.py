@@ -17,7 +17,7 @@ from curvslice.toolpaths.constants import (AHEAD_ANGLE, BEAD_RANGE, END_DEPTH, F
 from curvslice.toolpaths.passes import gap_passes, split_off_layer
 from curvslice.toolpaths.resampling import resample
 from curvslice.toolpaths.stacked import concat_ranges, piece_labels, run_labels, run_offsets
-from curvslice.vectors import row_norms
+from curvslice.vectors import pair_distances, row_norms
 
 
 def layer_beads(surface: trimesh.Trimesh, vertices: np.ndarray, faces: np.ndarray, passes: list[np.ndarray],
@@ -270,9 +270,9 @@ def _onto_layer(layer: _Projector, x: np.ndarray, j: np.ndarray, pieces: list[np
     # (a sample of a point left where it was is not lost: the same distance is not both within and past its bead)
     lost = np.zeros(len(x), bool)
     at = np.nonzero(np.any(on != pts, axis=1)[j])[0]
-    xa, ja = x[at], j[at]
+    xa, ja = np.take(x, at, axis=0), j[at]
     radius = 0.5 * bead[ja]
-    lost[at] = (row_norms(xa - pts[ja]) <= radius) & (row_norms(xa - on[ja]) > radius)
+    lost[at] = (row_norms(xa - np.take(pts, ja, axis=0)) <= radius) & (row_norms(xa - np.take(on, ja, axis=0)) > radius)
     pieces = np.split(on, stop)
     return pieces, fill_slivers(x[lost], pieces, beads, width, (OPEN_GAP - 0.5) * width)
 
@@ -432,12 +432,18 @@ def fill_slivers(x: np.ndarray, pieces: list[np.ndarray], widths: list[np.ndarra
     owners = np.nonzero(want > half)[0]
     if not len(owners):
         return widths
-    # (a bead claims at most what it asks for, so beads farther apart than twice the largest ask never meet)
-    pairs = cKDTree(pts[owners]).sparse_distance_matrix(tree, float(2.0 * want.max()), output_type="ndarray")
-    owner, other, dist = owners[pairs["i"]], pairs["j"], pairs["v"]
-    far = (label[other] != label[owner]) | (np.abs(key[other] - key[owner])
-                                            > SAME_PASS_BEADS * np.maximum(width, 2.0 * half[other]))
-    owner, other, dist = owner[far], other[far], dist[far]  # (most pairs lie along one pass)
+    # (a bead claims at most what it asks for, so beads farther apart than twice the largest ask never meet;
+    # nearly every point asks, so each pair is found once and taken both ways)
+    a, b = tree.query_pairs(float(2.0 * want.max()), output_type="ndarray").T
+    apart = np.abs(key[a] - key[b])
+    across = label[a] != label[b]
+    keep = across | (apart > SAME_PASS_BEADS * width)  # (most pairs lie along one pass)
+    a, b, apart, across = a[keep], b[keep], apart[keep], across[keep]
+    a_asks = (want[a] > half[a]) & (across | (apart > 2.0 * SAME_PASS_BEADS * half[b]))
+    b_asks = (want[b] > half[b]) & (across | (apart > 2.0 * SAME_PASS_BEADS * half[a]))
+    owner, other = np.r_[a[a_asks], b[b_asks]], np.r_[b[a_asks], a[b_asks]]
+    dist = pair_distances(pts, a, b)
+    dist = np.r_[dist[a_asks], dist[b_asks]]
     # up to the other bead's edge as it stands once grown by what it claims: what it asks for, at most
     # up to the halfway line of the free space between the two (so two beads that both ask for it split it)
     halfway = 0.5 * (dist + half[other] - half[owner])
@@ -475,7 +481,7 @@ def _bisectors(pts: np.ndarray, side: np.ndarray, owner: np.ndarray, extent: np.
     d, q = d.reshape(2, n, k), np.minimum(q.reshape(2, n, k), n - 1)
     i = np.arange(n)[:, None]
     other = (d < extent[..., None]) & ((owner[q] != owner[i]) | (np.abs(q - i) * FIT_STEP > SAME_PASS_BEADS))
-    v = pts[q] - pts[i]
+    v = np.take(pts, q, axis=0) - pts[i]
     lat = np.einsum("rikj,rij->rik", v, s)
     ok = other & (lat > 1e-9)
     return np.min(np.where(ok, np.einsum("rikj,rikj->rik", v, v) / (2.0 * np.where(ok, lat, 1.0)), np.inf), axis=2)
@@ -550,11 +556,11 @@ def _fit_strips(x: np.ndarray, xn: np.ndarray, fine: list[np.ndarray], width: fl
     norm = row_norms(side)[..., None]
     side = np.where(norm > 1e-9, side / np.maximum(norm, 1e-300), 0.0)
 
-    off, tan_j = x - pts[j], tan[j]
+    off, tan_j = x - np.take(pts, j, axis=0), np.take(tan, j, axis=0)  # (take: 4x numpy's row indexing)
     along = np.einsum("ij,ij->i", off, tan_j)
     # distance off the pass in 3D (the chord across a curved strip, as the bead must reach),
     # on the side the layer's tangent plane puts it
-    left = np.einsum("ij,ij->i", off, side[j]) >= 0
+    left = np.einsum("ij,ij->i", off, np.take(side, j, axis=0)) >= 0
     lateral = row_norms(off - along[:, None] * tan_j) * np.where(left, 1.0, -1.0)
     # one sort for the three group maxima (as 16-bit keys where they fit: numpy's radix sort, the same order)
     by_point = np.argsort(j.astype(np.uint16) if n <= 1 << 16 else j, kind="stable")
