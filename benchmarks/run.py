@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.errors import CurvsliceError
+from curvslice.executors import MAX_THREADS, default_threads
 
 REPO = Path(__file__).resolve().parents[1]
 STANDARD = (("bunny", 1.0), ("fertility", 0.76), ("kitten", 0.8), ("rocker-arm", 0.8), ("fandisk", 0.8))
@@ -60,6 +61,7 @@ STAGE_LABELS = {
     "geodesics": "geodesics (heat method)",
     "toolpaths_and_cover": "tool-path stage incl. coverage check",
     "toolpaths": "tool-paths (total)",
+    "toolpaths_one_thread": "tool-paths in order on one thread (--threads 1)",
     "spirals": "· Fermat spirals (incl. geodesics)",
     "orientation": "· orientations (Eq. 3.3)",
     "toolpaths_workers": "tool-paths on a local Dask cluster (--workers)",
@@ -202,13 +204,26 @@ def robot_subset(toolpaths, target: int) -> np.ndarray:
 def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, robot: str | None = "ur5",
              robot_waypoints: int = ROBOT_WAYPOINTS, downstream: bool = True, repeat: int = 3,
              budget: float = 20.0, timeout: float | None = None, quiet: bool = False,
-             workers: int | None = None) -> dict[str, object]:
+             workers: int | None = None, threads: int | None = None) -> dict[str, object]:
     """All stages on one model at one voxel size, each timed alone through the pipeline's registry
     (:func:`curvslice.pipeline.stage`); returns the case's JSON record. The field stage runs once per
     growing method; its load / voxelize / peeling / growing times are recorded beside. A stage stopped at
     ``timeout`` is recorded as such; the stages that need its result are then left out. ``workers``: the
     tool-path stage is also timed on a local Dask cluster of that many processes, right after it ran
-    in-process (the 1 vs N row; the cluster's start-up is not timed)."""
+    in-process (the 1 vs N row; the cluster's start-up is not timed). ``threads``: the in-process stages' threads
+    (:func:`curvslice.executors.open_executor`; default the command line's); with more than one, the tool-path
+    stage is also timed in order on one thread, right after."""
+    from curvslice.executors import open_executor
+
+    with open_executor(threads=threads) as executor:
+        return _run_case(model, voxel, methods, robot, robot_waypoints, downstream, repeat, budget, timeout, quiet,
+                         workers, executor)
+
+
+def _run_case(model: Path, voxel: float, methods: tuple[str, ...], robot: str | None, robot_waypoints: int,
+              downstream: bool, repeat: int, budget: float, timeout: float | None, quiet: bool, workers: int | None,
+              executor) -> dict[str, object]:
+    """:func:`run_case` with its stages' ``executor`` open."""
     from curvslice.pipeline import Context, Settings, stage
 
     rec = Recorder(repeat=repeat, budget=budget, quiet=quiet, timeout=timeout)
@@ -218,7 +233,7 @@ def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, r
     counts: dict[str, object] = {}
     ctx = None
     for method in methods:
-        c = Context(model, settings.replace(method=method), {})
+        c = Context(model, settings.replace(method=method), {}, executor=executor)
         try:
             field_ = rec.run(f"field_{method}", lambda c=c: stage("field").run(c),
                              lambda r, m=method: {("growing_" + m if k == "growing" else k): v
@@ -236,7 +251,7 @@ def run_case(model: Path, voxel: float, *, methods: tuple[str, ...] = METHODS, r
             _downstream(rec, ctx, robot_waypoints, counts, workers)
         except StageTimeout:
             pass
-    return {"model": model.stem, "voxel_mm": voxel, "counts": counts, "workers": workers,
+    return {"model": model.stem, "voxel_mm": voxel, "counts": counts, "workers": workers, "threads": executor.workers,
             "stages": {k: v.summary() for k, v in rec.stages.items()}}
 
 
@@ -260,6 +275,8 @@ def _downstream(rec: Recorder, ctx, robot_waypoints: int, counts: dict[str, obje
         lambda r: {"toolpaths": r.report["timings_s"]["toolpaths"], "spirals": r.report["spirals_s"],
                    "orientation": r.report["orientation_s"]})
     tp = ctx.results["toolpaths"].toolpaths
+    if ctx.executor.workers > 1:
+        _toolpaths_on_one_thread(rec, layers, ctx.settings.toolpath_settings(), tp)
     if workers:
         _toolpaths_on_workers(rec, layers, ctx.settings.toolpath_settings(), workers, tp)
     counts["toolpaths"] = {"samples": int(len(tp.positions)), "pieces": int(len(np.unique(tp.path))),
@@ -275,6 +292,16 @@ def _downstream(rec: Recorder, ctx, robot_waypoints: int, counts: dict[str, obje
                 if name in ctx.results:
                     stage(name).save(ctx.results[name], Path(tmp), ctx.settings, ctx.results)
         rec.run("export", export)
+
+
+def _toolpaths_on_one_thread(rec: Recorder, layers, settings, reference) -> None:
+    """The tool-path planning in order on one thread (``--threads 1``), beside the stage on the suite's threads:
+    its arrays must be the same."""
+    from curvslice.toolpaths import plan_toolpaths
+
+    tp = rec.run("toolpaths_one_thread", lambda: plan_toolpaths(layers, settings))
+    if not all(np.array_equal(getattr(tp, k), getattr(reference, k)) for k in ("positions", "normals", "bead", "extrusion")):
+        raise CurvsliceError("tool-paths on one thread differ from those on several")
 
 
 def _toolpaths_on_workers(rec: Recorder, layers, settings, workers: int, reference) -> None:
@@ -404,7 +431,7 @@ def _model_path(name: str, quick: bool) -> Path:
 
 def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, methods: tuple[str, ...] = METHODS,
               robot: str | None = "ur5", models: tuple[str, ...] | None = None, sweep: bool = True,
-              timeout: float | None = None, quiet: bool = False, workers: int | None = 2,
+              timeout: float | None = None, quiet: bool = False, workers: int | None = 2, threads: int | None = None,
               checkpoint: Callable[[dict[str, object]], None] | None = None) -> dict[str, object]:
     """Standard cases (+ the size sweep) → the JSON record written by :func:`write_outputs`;
     ``checkpoint(result)`` is called after every case with the record so far (``complete`` False)."""
@@ -419,7 +446,7 @@ def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, met
     out: dict[str, object] = {
         "suite": "quick" if quick else "full", "machine": machine(),
         "settings": {"repeat": repeat, "budget_s": budget, "timeout_s": timeout, "methods": list(methods), "robot": robot,
-                     "workers": workers,
+                     "workers": workers, "threads": threads if threads is not None else default_threads(),
                      "robot_waypoints": target, "standard": [list(c) for c in standard],
                      "sweep": {"model": sweep_model, "voxels_mm": list(sweep_sizes)} if sweep else None},
         "standard": [], "sweep": [], "complete": False,
@@ -435,10 +462,11 @@ def run_suite(*, quick: bool = False, repeat: int = 3, budget: float = 20.0, met
 
     for name, voxel in standard:
         done("standard", run_case(_model_path(name, quick), voxel, methods=methods, robot=robot, robot_waypoints=target,
-                                  repeat=repeat, budget=budget, timeout=timeout, quiet=quiet, workers=workers))
+                                  repeat=repeat, budget=budget, timeout=timeout, quiet=quiet, workers=workers,
+                                  threads=threads))
     for voxel in sweep_sizes if sweep else ():
         done("sweep", run_case(_model_path(sweep_model, quick), voxel, methods=("pg-sp-gcfa",), robot=None,
-                               repeat=repeat, budget=budget, timeout=timeout, quiet=quiet))
+                               repeat=repeat, budget=budget, timeout=timeout, quiet=quiet, threads=threads))
     if not quick:  # Table 2.1: the bunny's RoboFDM decomposition and its printed parts' fabrication time
         from benchmarks.bench_decompose import decomposition_case
 
@@ -528,8 +556,13 @@ def markdown(result: dict[str, object]) -> str:
     keys = [k for k in STAGE_LABELS if any(k in c["stages"] for c in cases)]
     for k in keys:
         lines.append(f"| {STAGE_LABELS[k]} | " + " | ".join(_cell(c["stages"].get(k)) for c in cases) + " |")
-    lines += ["", "Rows starting with · are parts of the total above them (summed per-layer times the library "
-              "reports); the robot rows use the first layers of the tool-paths, in print order, until they hold "
+    threads = st.get("threads") or 1
+    lines += ["", (f"The per-layer tasks of the working surfaces, tool-paths and robot stages run on {threads} threads of "
+                   "the process (`--threads`, as `curvslice slice` does by default); the row 'in order on one thread' "
+                   "times the tool-path stage without them, right after, arrays identical (checked). "
+                   if threads > 1 else "The stages run in order on one thread (`--threads 1`). ")
+              + "Rows starting with · are parts of the total above them (summed per-layer times the library "
+              "reports: on several threads they add up the threads' time, more than the wall clock); the robot rows use the first layers of the tool-paths, in print order, until they hold "
               f"at least {st['robot_waypoints']:,} waypoints (Table 4.2's WS1 has 2,545), p = 30 rotations, "
               f"the shipped {st['robot']} workcell.", ""]
     lines += workers_table(cases, m["nproc"])
@@ -765,6 +798,8 @@ def add_arguments(p) -> None:
     p.add_argument("--no-sweep", action="store_true", help="skip the size sweep")
     p.add_argument("--workers", type=int, default=2, help="also time the tool-path stage of the standard models on a "
                    "local Dask cluster of this many processes, beside the in-process run (0: skip)")
+    p.add_argument("--threads", type=int, help="threads of the in-process stages (default: as `curvslice slice`, the "
+                   f"cores available, at most {MAX_THREADS}); with more than one, the tool-path stage is also timed on one")
     p.add_argument("--quiet", action="store_true", help="no per-stage lines")
     p.add_argument("--verify-only", action="store_true", help="only the verify table (benchmarks/bench_verify.py): "
                    "slice every shared model at its standard settings and the kitten variants, verify, and replace "
@@ -787,6 +822,7 @@ def execute(args) -> int:
                        robot=None if str(args.robot).lower() == "none" else args.robot,
                        models=tuple(args.models) if args.models else None, sweep=not args.no_sweep,
                        timeout=args.stage_timeout or None, quiet=args.quiet, workers=args.workers or None,
+                       threads=args.threads,
                        checkpoint=lambda partial: write_outputs(partial, out))
     if not args.quick and not args.no_verify_table:
         result["verify"] = verify_table(tuple(args.models) if args.models else None, args.scratch, args.quiet,

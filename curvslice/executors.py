@@ -1,5 +1,6 @@
-"""Where the per-layer work of a stage runs: here, in order (the default, no Dask import), or on a
-Dask cluster (``dask.distributed``: a local one of N processes, or any existing one by address).
+"""Where the per-layer work of a stage runs: here, in order (no Dask import); here on a few threads (the
+command line's default: :class:`Threads`); or on a Dask cluster (``dask.distributed``: a local one of N
+processes, or any existing one by address).
 
 Stages see one small interface, :class:`Executor`:
 
@@ -22,6 +23,7 @@ from __future__ import annotations
 import os
 import warnings
 from collections.abc import Callable, Iterable, Iterator, Sequence
+from concurrent.futures import Future, ThreadPoolExecutor, as_completed
 from contextlib import contextmanager
 from typing import Any
 
@@ -88,6 +90,61 @@ class InProcess:
         if progress is not None:
             progress.update(len(futures))
         return list(futures)
+
+
+class Threads:
+    """Tasks on ``threads`` threads of this process (``concurrent.futures``): numpy, scipy's KD-trees and
+    SuperLU release the GIL in their loops, so two layers' tasks share two cores (the bunny 1.0's tool-paths:
+    52 -> 43 s wall on this 2-core machine, for 10 % more CPU; the same arrays bit for bit), without the
+    start-up, copies and memory of worker processes. ``submit`` takes futures as arguments and waits for
+    them inside the task: the pool starts tasks in submission order and a task only waits for ones
+    submitted before it, which are then running or done, so no task waits for a queued one. Priorities
+    and lanes are Dask's; here the order of submission is the order of start."""
+
+    def __init__(self, threads: int):
+        self.workers = threads
+        self.pool = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="curvslice")
+
+    def map(self, fn: Callable, items: Iterable, progress=None, **shared: Any) -> list:
+        return self.gather([self.pool.submit(fn, item, **shared) for item in items], progress)
+
+    def share(self, value: Any) -> Any:
+        return value
+
+    def submit(self, fn: Callable, *args: Any, priority: int = 0, lane: str = "any", **kwargs: Any) -> Future:
+        return self.pool.submit(_resolved, fn, args, kwargs)
+
+    def gather(self, futures: Sequence, progress=None) -> list:
+        if progress is not None:
+            for _ in as_completed(futures):
+                progress.update(1)
+        return [f.result() for f in futures]
+
+    def close(self, cancel: bool = False) -> None:
+        """Stop the threads once their tasks are done (``cancel``: the queued ones are dropped, a running
+        one ends first -- what an interrupt or an error in the caller does)."""
+        self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+def _resolved(fn: Callable, args: tuple, kwargs: dict) -> Any:
+    """``fn(*args, **kwargs)`` with every future among them replaced by its result."""
+    def value(v: Any) -> Any:
+        return v.result() if isinstance(v, Future) else v
+
+    return fn(*[value(a) for a in args], **{k: value(v) for k, v in kwargs.items()})
+
+
+def default_threads() -> int:
+    """Threads of an in-process run when none are asked for: the cores this process may use, at most
+    :data:`MAX_THREADS`."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, MAX_THREADS))
+
+
+#: Most threads an in-process run takes by default: the tasks hold the GIL between numpy calls, and on this
+#: 2-core machine a third thread made the bunny's tool-paths slower (43 -> 46 s wall, 59 -> 65 CPU s) --
+#: more cores scale with Dask's worker processes (``--workers``), not with threads.
+MAX_THREADS = 2
 
 
 class DaskExecutor:
@@ -166,19 +223,34 @@ def _value(value: Any) -> Any:
     return value
 
 
-Executor = InProcess | DaskExecutor
+Executor = InProcess | Threads | DaskExecutor
 
 
 @contextmanager
 def open_executor(workers: int | None = None, scheduler: str | None = None,
-                  retries: int = RETRIES) -> Iterator[Executor]:
-    """In-process without arguments; ``workers``: a local cluster of that many single-threaded worker
-    processes (on 127.0.0.1, no dashboard); ``scheduler``: the cluster at that address
+                  retries: int = RETRIES, threads: int | None = None) -> Iterator[Executor]:
+    """In-process without ``workers`` or ``scheduler``: on ``threads`` threads (:class:`Threads`; default
+    :func:`default_threads`), in order for one; ``workers``: a local cluster of that many single-threaded
+    worker processes (on 127.0.0.1, no dashboard); ``scheduler``: the cluster at that address
     (``tcp://host:8786``, e.g. of ``dask scheduler`` + ``dask worker``)."""
     if workers is not None and scheduler is not None:
         raise CurvsliceError("give either a number of local workers or a scheduler address, not both")
+    if threads is not None and (workers is not None or scheduler is not None):
+        raise CurvsliceError("threads are for a run in this process: give them without Dask workers or a scheduler")
+    if threads is not None and threads < 1:
+        raise CurvsliceError(f"the number of threads must be at least 1 (got {threads})")
     if workers is None and scheduler is None:
-        yield InProcess()
+        count = default_threads() if threads is None else threads
+        if count == 1:
+            yield InProcess()
+            return
+        pool = Threads(count)
+        try:
+            yield pool
+        except BaseException:
+            pool.close(cancel=True)
+            raise
+        pool.close()
         return
     from dask.distributed import Client, LocalCluster
 

@@ -97,13 +97,14 @@ def test_quick_bench_times_every_stage(quick_run):
     out, result = quick_run
     assert [c["model"] for c in result["standard"]] == ["tee", "arch"]
     for case in result["standard"]:
-        assert set(case["stages"]) == set(STAGE_LABELS)
+        threads = case["threads"]  # (the one-thread row is timed when the suite's stages run on several)
+        assert set(case["stages"]) == set(STAGE_LABELS) - ({"toolpaths_one_thread"} if threads == 1 else set())
         for st in case["stages"].values():
             assert st["reps"] >= 1 and 0 < st["median_s"] < 120
         s = {k: v["median_s"] for k, v in case["stages"].items()}
-        # parts the library reports inside a stage never exceed that stage's wall time
-        assert s["dual_contouring"] + s["trimming"] <= s["surfaces"] * 1.01
-        assert s["spirals"] + s["orientation"] <= s["toolpaths"] * 1.01
+        # parts the library reports inside a stage (summed task times) never exceed its wall time on each thread
+        assert s["dual_contouring"] + s["trimming"] <= s["surfaces"] * threads * 1.01
+        assert s["spirals"] + s["orientation"] <= s["toolpaths"] * threads * 1.01
         n = case["counts"]
         assert n["pg-sp-gcfa"]["missed"] == 0  # the repository models are printable without misses
         assert n["surfaces"]["layers"] >= n["pg-sp-gcfa"]["layers"] - 1
@@ -120,6 +121,8 @@ def test_quick_bench_writes_markdown_and_plot(quick_run):
     for case in result["standard"]:
         assert f"{case['model']} @{case['voxel_mm']:g} mm" in md
     for key, label in STAGE_LABELS.items():
+        if key == "toolpaths_one_thread" and result["settings"]["threads"] == 1:
+            continue
         assert f"| {label} |" in md, label
         if key not in DERIVED:
             assert sum(line.startswith(f"| {label} |") for line in md.splitlines()) >= 2  # times + memory

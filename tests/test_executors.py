@@ -1,5 +1,5 @@
-"""Dask executors (issue 16): the same arrays whatever runs the per-layer tasks -- in this process, a
-local cluster, or a real ``dask scheduler`` + ``dask worker`` pair one of which is killed mid-run."""
+"""Executors (issue 16): the same arrays whatever runs the per-layer tasks -- in this process in order or on
+threads, a local Dask cluster, or a real ``dask scheduler`` + ``dask worker`` pair one of which is killed mid-run."""
 
 from __future__ import annotations
 
@@ -17,7 +17,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from curvslice.cli import main
-from curvslice.executors import open_executor
+from curvslice.errors import CurvsliceError
+from curvslice.executors import InProcess, Threads, open_executor
 from curvslice.toolpaths.passes import uncross
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,13 +46,15 @@ def _assert_same(a: Path, b: Path) -> None:
 
 @pytest.fixture(scope="module")
 def in_process(tmp_path_factory) -> Path:
-    """The tee sliced in a fresh interpreter, in-process; that run must not import Dask at all."""
+    """The tee sliced in a fresh interpreter, in-process and in order (``--threads 1``); that run must not import
+    Dask at all."""
     out = tmp_path_factory.mktemp("inproc") / "tee"
     code = ("import sys; from curvslice.cli import main; rc = main(sys.argv[1:]); "
             "assert 'distributed' not in sys.modules and 'dask' not in sys.modules, 'in-process run imported Dask'; "
             "sys.exit(rc)")
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    subprocess.run([sys.executable, "-c", code, "slice", str(TEE), *ARGS, "--out", str(out)], check=True, env=env)
+    subprocess.run([sys.executable, "-c", code, "slice", str(TEE), *ARGS, "--out", str(out), "--threads", "1"], check=True,
+                   env=env)
     return out
 
 
@@ -63,6 +66,57 @@ def test_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):
     strip = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]
     reports = [json.loads((f / "report.json").read_text()) for f in (in_process, out)]
     assert strip(reports[0]["toolpaths"]["per_layer"]) == strip(reports[1]["toolpaths"]["per_layer"])
+
+
+def test_threads_give_the_in_order_arrays(in_process, tmp_path):
+    """Two threads (the command line's default on two cores and more) give the arrays of one, under the
+    ``chain`` rule, whose folds wait for each other and for their layer's rings on the other thread."""
+    out = tmp_path / "tee2"
+    assert main(["slice", str(TEE), *ARGS, "--out", str(out), "--threads", "2"]) == 0
+    _assert_same(in_process, out)
+
+
+def test_thread_tasks_wait_for_the_futures_they_take():
+    """``submit`` with futures among the arguments: each task gets their results (a chain of 40 links, each
+    added to the last, on two threads), ``map`` keeps the order, and ``gather`` counts each task done once."""
+    class Count:
+        n = 0
+
+        def update(self, k: int) -> None:
+            self.n += k
+
+    with open_executor(threads=2) as ex:
+        assert isinstance(ex, Threads) and ex.workers == 2
+        link = ex.submit(lambda x: x, 0)
+        links = [link]
+        for i in range(1, 40):
+            link = ex.submit(lambda previous, i: (time.sleep(0.001 * (i % 3)), previous + i)[1], link, i=i)
+            links.append(link)
+        bar = Count()
+        assert ex.gather(links, bar) == [i * (i + 1) // 2 for i in range(40)] and bar.n == 40
+        assert ex.map(lambda x, k: x * k, range(10), k=3) == [3 * x for x in range(10)]
+    with open_executor(threads=1) as ex:
+        assert isinstance(ex, InProcess)
+    with pytest.raises(CurvsliceError, match="at least 1"):
+        with open_executor(threads=0):
+            pass
+    with pytest.raises(CurvsliceError, match="without Dask"):
+        with open_executor(workers=2, threads=2):
+            pass
+
+
+def test_an_error_in_the_caller_drops_the_queued_thread_tasks():
+    """An exception (an interrupt) in the ``with`` block cancels the tasks not yet started instead of running
+    them all first: the running one ends, the other 20 never start."""
+    started = []
+    with pytest.raises(KeyboardInterrupt):
+        with open_executor(threads=2) as ex:
+            for i in range(22):
+                ex.submit(lambda i: (started.append(i), time.sleep(0.2)), i)
+            time.sleep(0.05)
+            raise KeyboardInterrupt
+    time.sleep(0.5)
+    assert len(started) == 2
 
 
 def test_seam_start_rule_on_a_local_cluster_gives_the_in_process_arrays(in_process, tmp_path):

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from curvslice.errors import CurvsliceError
-from curvslice.executors import open_executor
+from curvslice.executors import MAX_THREADS, open_executor
 from curvslice.pipeline import STAGE_NAMES, Settings, read_report, run as run_pipeline, setting_bounds, settings_of
 from curvslice.validate import argument_type, count, number
 
@@ -82,9 +82,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(run=run)
 
 
-def add_execution_arguments(p: argparse.ArgumentParser) -> None:
-    """``--workers`` / ``--scheduler``: where the per-layer tasks run (never what they compute)."""
-    g = p.add_argument_group("execution (Dask; the results are the same)").add_mutually_exclusive_group()
+def add_execution_arguments(p: argparse.ArgumentParser, threads: bool = True) -> None:
+    """``--threads`` (with ``threads``) / ``--workers`` / ``--scheduler``: where the per-layer tasks run (never
+    what they compute)."""
+    g = p.add_argument_group("execution (threads or Dask; the results are the same)").add_mutually_exclusive_group()
+    if threads:
+        g.add_argument("--threads", type=int, metavar="N", help="run per-layer tasks on N threads of this process "
+                       f"(default: the cores it may use, at most {MAX_THREADS}; 1: one after the other)")
     g.add_argument("--workers", type=int, metavar="N", help="run per-layer tasks on a local Dask cluster of N "
                    "single-threaded worker processes (default: in this process)")
     g.add_argument("--scheduler", metavar="ADDRESS", help="run them on an existing Dask cluster, e.g. "
@@ -127,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     if args.resume and settings.robot is not None and args.stages is None:
         until = "robot"  # asking for a robot on resume means planning it
     after = _preview(args) if args.preview else None
-    with open_executor(args.workers, args.scheduler) as executor:
+    with open_executor(args.workers, args.scheduler, threads=args.threads) as executor:
         run_pipeline(model, settings, until=until, out=out, resume=args.resume, force=args.force, quiet=args.quiet,
                      after=after, executor=executor)
     if not args.quiet:

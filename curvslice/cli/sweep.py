@@ -42,7 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="folder of the runs' folders and sweep.csv")
     p.add_argument("--stages", default="toolpaths", choices=STAGE_NAMES, help="last stage of every run")
     p.add_argument("--force", action="store_true", help="replace existing run folders")
-    add_execution_arguments(p)
+    add_execution_arguments(p, threads=False)
     p.set_defaults(run=run)
 
 
@@ -102,7 +102,9 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     combos = [dict(zip(grid, values)) for values in itertools.product(*grid.values())]
     runs = [(str(m), c, str(out / run_name(m, c)), args.stages, args.force) for m in models for c in combos]
-    with open_executor(args.workers, args.scheduler) as executor, \
+    # (without Dask the runs go one after the other, each in order: a run is no task for a thread)
+    local = args.workers is None and args.scheduler is None
+    with open_executor(args.workers, args.scheduler, threads=1 if local else None) as executor, \
             tqdm(total=len(runs), desc="sweep", unit="run", dynamic_ncols=True) as bar:
         rows = executor.map(sweep_run, runs, progress=bar)
     columns = list(dict.fromkeys(k for r in rows for k in r if k != "trace")) + ["trace"]
