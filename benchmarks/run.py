@@ -557,14 +557,16 @@ def markdown(result: dict[str, object]) -> str:
     for k in keys:
         lines.append(f"| {STAGE_LABELS[k]} | " + " | ".join(_cell(c["stages"].get(k)) for c in cases) + " |")
     threads = st.get("threads") or 1
-    lines += ["", (f"The per-layer tasks of the working surfaces, tool-paths and robot stages run on {threads} threads of "
-                   "the process (`--threads`, as `curvslice slice` does by default); the row 'in order on one thread' "
+    lines += ["", (f"The per-layer tasks of the working surfaces and tool-path stages run on {threads} threads of "
+                   "the process (`--threads`, as `curvslice slice` does by default; the robot stage's blocks run in "
+                   "order); the row 'in order on one thread' "
                    "times the tool-path stage without them, right after, arrays identical (checked). "
                    if threads > 1 else "The stages run in order on one thread (`--threads 1`). ")
               + "Rows starting with · are parts of the total above them (summed per-layer times the library "
-              "reports: on several threads they add up the threads' time, more than the wall clock); the robot rows use the first layers of the tool-paths, in print order, until they hold "
-              f"at least {st['robot_waypoints']:,} waypoints (Table 4.2's WS1 has 2,545), p = 30 rotations, "
-              f"the shipped {st['robot']} workcell.", ""]
+              "reports: on several threads they add up the threads' time, more than the wall clock)"
+              + (f"; the robot rows use the first layers of the tool-paths, in print order, until they hold at least "
+                 f"{st['robot_waypoints']:,} waypoints (Table 4.2's WS1 has 2,545), p = 30 rotations, the shipped "
+                 f"{st['robot']} workcell." if st.get("robot") else "; no robot stage (--robot none)."), ""]
     lines += workers_table(cases, m["nproc"])
     lines += ["## Counts", "",
               "| case | voxels | " + " | ".join(f"{x} layers / missed" for x in st["methods"])
