@@ -165,7 +165,7 @@ def timed_run(layers, settings, workers: int | None) -> dict:
     """Wall seconds of :func:`plan_toolpaths` (cluster start-up and the workers' imports apart) and the CPU
     seconds it took in this process and on the workers."""
     t = time.perf_counter()
-    with open_executor(workers=workers) as ex:
+    with open_executor(workers=workers, threads=None if workers else 1) as ex:  # (in order against the workers)
         cpu = (lambda: ex.client.run(time.process_time)) if workers else (lambda: {})
         if workers:
             ex.client.run(_import_plan)
@@ -182,7 +182,7 @@ def whole_run(model: Path, settings: Settings, workers: int | None) -> dict:
     """Wall seconds of the whole slice to tool-paths (field, layers, tool-paths; no files written)
     in-process or on a local cluster of ``workers`` (cluster start-up and the workers' imports apart)."""
     t = time.perf_counter()
-    with open_executor(workers=workers) as ex:
+    with open_executor(workers=workers, threads=None if workers else 1) as ex:  # (in order against the workers)
         if workers:
             ex.client.run(_import_plan)
         up = time.perf_counter() - t

@@ -95,11 +95,12 @@ class InProcess:
 class Threads:
     """Tasks on ``threads`` threads of this process (``concurrent.futures``): numpy, scipy's KD-trees and
     SuperLU release the GIL in their loops, so two layers' tasks share two cores (the bunny 1.0's tool-paths:
-    52 -> 43 s wall on this 2-core machine, for 10 % more CPU; the same arrays bit for bit), without the
-    start-up, copies and memory of worker processes. ``submit`` takes futures as arguments and waits for
-    them inside the task: the pool starts tasks in submission order and a task only waits for ones
-    submitted before it, which are then running or done, so no task waits for a queued one. Priorities
-    and lanes are Dask's; here the order of submission is the order of start."""
+    51 -> 42 s wall in the benchmark on this 2-core machine, for 3-10 % more CPU; the same arrays bit for bit),
+    without the start-up, copies and memory of worker processes. ``submit`` takes futures as arguments and
+    waits for them inside the task: the pool starts tasks in submission order and a task only waits for ones
+    submitted before it, which are then running or done, so no task waits for a queued one. Priorities and
+    lanes are Dask's; here the order of submission is the order of start (submitting the chain's folds
+    between other layers' tasks gained nothing: the GIL, not the order, bounds two threads)."""
 
     def __init__(self, threads: int):
         self.workers = threads
