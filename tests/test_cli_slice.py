@@ -174,3 +174,17 @@ def test_touching_bodies_lose_their_internal_wall(tmp_path):
     fin.faces = fin.faces[np.r_[0:len(a.faces), len(a.faces) + 2:len(fin.faces)]]  # an open, non-manifold mess
     with pytest.raises(CurvsliceError, match="open boundary edges.*shared by more than two"):
         repair(fin)
+
+
+@pytest.mark.parametrize("form", [["--up", "-y"], ["--up=-y"]])
+def test_a_negative_up_axis_is_taken_with_or_without_the_equals_sign(tmp_path, form):
+    """``--up -y`` failed in argparse ("expected one argument": a value starting with a dash reads as an
+    option); both forms now place the part upside down about y: its old -y side on the platform."""
+    model = tmp_path / "wedge.stl"
+    trimesh.creation.box(extents=(10, 20, 6)).export(model)
+    out = tmp_path / "o"
+    assert main(["slice", str(model), *form, "--voxel", "2", "--stages", "field", "--quiet", "--no-verify",
+                 "--out", str(out)]) == 0
+    report = json.loads((out / "report.json").read_text())
+    assert report["parameters"]["up"] == "-y"
+    assert np.allclose(trimesh.load(out / "solid.stl").extents, (10, 6, 20))  # y (20 mm) now vertical

@@ -72,8 +72,20 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _joined_negative_axes(argv: list[str]) -> list[str]:
+    """``--up -y`` as ``--up=-y``: argparse reads a value starting with a dash as the next option (and failed
+    with "expected one argument"), so a part's negative axis could only be given in the ``=`` form."""
+    out: list[str] = []
+    for a in argv:
+        if out and out[-1] == "--up" and a in ("-x", "-y", "-z"):
+            out[-1] = f"--up={a}"
+        else:
+            out.append(a)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
+    argv = _joined_negative_axes(sys.argv[1:] if argv is None else list(argv))
     first = next((a for a in argv if not a.startswith("-")), None)
     try:
         parser = build_parser(first if first in COMMANDS else None)
