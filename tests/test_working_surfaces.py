@@ -675,3 +675,15 @@ def test_a_layer_on_missed_voxels_lies_on_no_voxels_of_another_layer(kitten_slic
     field["growing"] = np.where(gone, 0, field["growing"]).astype(field["growing"].dtype)
     np.savez(out / "field.npz", **field)
     assert {r.name: r.passed for r in verify_layers.checks(out)}[name]
+
+
+def test_closest_points_in_chunks_are_trimeshs(monkeypatch):
+    """The verifier's closest points on ∂H, a few points per call (trimesh's candidate arrays grow with the points
+    times the triangles near each: 4 GB on a coarse gear), are trimesh's in one call, row for row."""
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=10.0)
+    pts = np.random.default_rng(3).normal(size=(53, 3)) * 8.0
+    whole = trimesh.proximity.closest_point(mesh, pts)
+    monkeypatch.setattr(verify_layers, "CLOSEST_CHUNK", 10)
+    chunked = verify_layers.closest_on(mesh, pts)
+    for x, y in zip(whole, chunked):
+        assert np.array_equal(x, y)

@@ -68,6 +68,10 @@ BATCH = 200_000
 #: counts by its dipole alone (Barill et al. 2018: error well under the ½ that decides inside).
 WINDING_LEAF = 16
 WINDING_FAR = 2.0
+#: Points per call of trimesh's closest-point query (:func:`closest_on`): on the pinion at 70 mm (CGAL data, 1,300
+#: triangles up to 20 mm across) one call took 4.0 GB and the layer checks peaked at 4.1 GB resident, 1.5 GB (the
+#: winding numbers') with 4,096 points a call, and 49 s instead of 58.
+CLOSEST_CHUNK = 4096
 #: (point, triangle) pairs :func:`winding_numbers` evaluates at once (about 0.3 GB of temporaries).
 WINDING_PAIRS = 1_000_000
 
@@ -138,6 +142,16 @@ def _solid_angles(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     den = (la * lb * lc + np.einsum("ij,ij->i", a, b) * lc + np.einsum("ij,ij->i", a, c) * lb
            + np.einsum("ij,ij->i", b, c) * la)
     return 2.0 * np.arctan2(det, den)
+
+
+def closest_on(mesh: trimesh.Trimesh, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``trimesh.proximity.closest_point`` (closest points, distances, triangle ids) :data:`CLOSEST_CHUNK` points at
+    a time: its candidate arrays grow with the points times the triangles whose boxes each falls in."""
+    pts = np.asarray(points, float).reshape(-1, 3)
+    if len(pts) <= CLOSEST_CHUNK:
+        return trimesh.proximity.closest_point(mesh, pts)
+    parts = [trimesh.proximity.closest_point(mesh, pts[a:a + CLOSEST_CHUNK]) for a in range(0, len(pts), CLOSEST_CHUNK)]
+    return tuple(np.concatenate([part[i] for part in parts]) for i in range(3))
 
 
 def winding_numbers(solid: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
@@ -253,7 +267,7 @@ def layer_spacing(earlier: trimesh.Trimesh, later: trimesh.Trimesh, voxel_size: 
     point from earlier to later."""
     n = int(np.clip(later.area * SAMPLES_PER_W2 / voxel_size**2, 1, MAX_SAMPLES))
     pts, fid = trimesh.sample.sample_surface(later, n, seed=seed)
-    foot, dist, tid = trimesh.proximity.closest_point(earlier, pts)
+    foot, dist, tid = closest_on(earlier, pts)
     vec = pts - foot
     n_early = earlier.face_normals[tid]
     perpendicular = np.abs(np.einsum("ij,ij->i", vec, n_early)) >= 0.99 * dist
@@ -355,7 +369,7 @@ def checks(outdir: Path) -> list[Check] | None:
     doubt = ~parity | ~winding  # outside by either test: how far off ∂H?
     off = np.zeros(len(verts))
     if doubt.any():
-        off[doubt] = trimesh.proximity.closest_point(solid, verts[doubt])[1] / w
+        off[doubt] = closest_on(solid, verts[doubt])[1] / w
     outside = ~winding & (off > TOLERANCE)
     disagree = int(np.sum((parity != winding) & (off > TOLERANCE)))
     worst = float(off[outside].max()) if outside.any() else 0.0
@@ -371,7 +385,7 @@ def checks(outdir: Path) -> list[Check] | None:
     ends = [np.unique(boundary_edges(m.faces)) for m in live]
     bnd = np.concatenate([m.vertices[e] for m, e in zip(live, ends)])
     bnd_layer = np.repeat(numbers, [len(e) for e in ends])
-    bd = trimesh.proximity.closest_point(solid, bnd)[1] / w if len(bnd) else np.zeros(0)
+    bd = closest_on(solid, bnd)[1] / w if len(bnd) else np.zeros(0)
     interior = bnd[bd > TOLERANCE]
     near_jump = np.zeros(len(interior), bool)
     if len(interior):

@@ -24,7 +24,7 @@ import trimesh
 from scipy.spatial import cKDTree
 
 from curvslice.verify import Check, layer_list
-from curvslice.verify.layers import TOLERANCE, winding_numbers
+from curvslice.verify.layers import TOLERANCE, closest_on, winding_numbers
 
 STAGE = "toolpaths"
 COVERAGE_MIN = 0.95
@@ -143,7 +143,7 @@ def segments_outside(solid: trimesh.Trimesh, positions: np.ndarray, path: np.nda
     doubt = winding_numbers(solid, pts) < 0.5
     off = np.zeros(len(pts))
     if doubt.any():
-        off[doubt] = trimesh.proximity.closest_point(solid, pts[doubt])[1]
+        off[doubt] = closest_on(solid, pts[doubt])[1]
     bad = off > TOLERANCE * voxel
     if not bad.any():
         return np.zeros(0, np.int64), np.zeros(0)
@@ -203,13 +203,13 @@ def checks(outdir: Path) -> list[Check] | None:
         coverage.append(cov)
         overlap.append(ovl)
         if mask.any() and len(mesh.faces):
-            closest, dist, face = trimesh.proximity.closest_point(mesh, pos[mask])
+            closest, dist, face = closest_on(mesh, pos[mask])
             on_surface.append(float(dist.max()))
             mine = long[layer[long] == number]
             if len(mine):
                 u = np.array([0.25, 0.5, 0.75])[None, :, None]
                 probe = (pos[mine, None] + u * (pos[mine + 1] - pos[mine])[:, None]).reshape(-1, 3)
-                off = trimesh.proximity.closest_point(mesh, probe)[1].reshape(-1, 3).max(axis=1)
+                off = closest_on(mesh, probe)[1].reshape(-1, 3).max(axis=1)
                 chord_off += [(float(d), number) for d in off]
             # the layer normal at the closest point, interpolated from the vertex normals (a sliver
             # triangle of the contoured layer may be flipped; the surface around it is not)
