@@ -315,13 +315,17 @@ def _near_own_voxels(mesh: trimesh.Trimesh, voxels: np.ndarray, origin: np.ndarr
     """For area-uniform samples of a layer file: is a voxel of that layer within one voxel
     (Chebyshev) of the sample's nearest voxel?"""
     n = int(np.clip(mesh.area * SAMPLES_PER_W2 / w**2, 1, MAX_SAMPLES))
-    pts = trimesh.sample.sample_surface(mesh, n, seed=seed)[0]
-    own = np.pad(voxels, 1)
-    base = np.rint((pts - origin) / w).astype(np.int64) + 1
-    hit = np.zeros(len(pts), bool)
+    return _within_one_voxel(trimesh.sample.sample_surface(mesh, n, seed=seed)[0], voxels, origin, w)
+
+
+def _within_one_voxel(points: np.ndarray, voxels: np.ndarray, origin: np.ndarray, w: float) -> np.ndarray:
+    """Per point: is one of ``voxels`` (a grid mask) within one voxel (Chebyshev) of the point's nearest voxel?"""
+    mask = np.pad(voxels, 1)
+    base = np.rint((points - origin) / w).astype(np.int64) + 1
+    hit = np.zeros(len(points), bool)
     for d in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
-        ijk = np.clip(base + d, 0, np.array(own.shape) - 1)
-        hit |= own[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+        ijk = np.clip(base + d, 0, np.array(mask.shape) - 1)
+        hit |= mask[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
     return hit
 
 
@@ -387,13 +391,8 @@ def checks(outdir: Path) -> list[Check] | None:
     bnd_layer = np.repeat(numbers, [len(e) for e in ends])
     bd = closest_on(solid, bnd)[1] / w if len(bnd) else np.zeros(0)
     interior = bnd[bd > TOLERANCE]
-    near_jump = np.zeros(len(interior), bool)
-    if len(interior):
-        jumps = np.pad(jump_voxels(growing, occupied) | missed, 1)
-        base = np.rint((interior - origin) / w).astype(np.int64) + 1
-        for d in np.stack(np.meshgrid(*[np.arange(-1, 2)] * 3, indexing="ij"), -1).reshape(-1, 3):
-            ijk = np.clip(base + d, 0, np.array(jumps.shape) - 1)
-            near_jump |= jumps[ijk[:, 0], ijk[:, 1], ijk[:, 2]]
+    near_jump = (_within_one_voxel(interior, jump_voxels(growing, occupied) | missed, origin, w) if len(interior)
+                 else np.zeros(0, bool))
     unexplained = int((~near_jump).sum())
     stray = bd[bd > TOLERANCE][~near_jump]
     stray_layers = np.unique(bnd_layer[bd > TOLERANCE][~near_jump])
